@@ -1,0 +1,143 @@
+"""Bytes on the wire <-> Python values, for requests, replies and messages.
+
+MessagePack by default; JSON when the Zenoh encoding is ``application/json``
+(then the reply is JSON too). Decoding is strict (WIRE.md "Bad input"): any
+defect raises :class:`WireError` naming the field, which a service answers
+with ``VALUE_ERR``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+from collections.abc import Mapping
+from typing import Any
+
+import msgpack
+
+from .codes import ReturnCode
+from .errors import WireError
+from .operations import Operation
+from .wire_types import LONG, STRING, StructType
+
+
+class Encoding(enum.Enum):
+    MSGPACK = "application/msgpack"
+    JSON = "application/json"
+
+    @classmethod
+    def of(cls, zenoh_encoding: object | None) -> "Encoding":
+        """The codec for a Zenoh encoding: JSON for ``application/json``, else MessagePack."""
+        text = str(zenoh_encoding or "")
+        return cls.JSON if text.split(";", 1)[0] in ("application/json", "text/json") else cls.MSGPACK
+
+
+def _reject_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not allowed")
+
+
+def loads(payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
+    """Parse a payload; an empty one is an empty map. Raises WireError(``payload``)."""
+    if not payload:
+        return {}
+    try:
+        if encoding is Encoding.JSON:
+            return json.loads(payload, parse_constant=_reject_constant)
+        return msgpack.unpackb(payload, raw=False, strict_map_key=True)
+    except Exception as exc:  # every parser error is the client's
+        raise WireError("payload", f"not valid {encoding.name}: {exc}") from None
+
+
+def dumps(value: Any, encoding: Encoding = Encoding.MSGPACK) -> bytes:
+    if encoding is Encoding.JSON:
+        return json.dumps(value, separators=(",", ":"), allow_nan=False).encode()
+    return msgpack.packb(value, use_bin_type=True)
+
+
+def decode_request(op: Operation, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> dict[str, Any]:
+    """The ``in`` parameters of ``op`` by name, strictly checked."""
+    value = loads(payload, encoding)
+    if not isinstance(value, dict):
+        raise WireError("payload", f"expected a map of the in parameters of {op.name}, "
+                        f"got {type(value).__name__}")
+    names = [p.name for p in op.inputs]
+    for key in value:
+        if key not in names:
+            valid = ", ".join(names) if names else "none"
+            raise WireError(str(key), f"unexpected parameter of {op.name}; valid parameters: {valid}")
+    args = {}
+    for p in op.inputs:
+        if p.name not in value:
+            raise WireError(p.name, f"missing parameter of {op.name}")
+        args[p.name] = p.type.decode(value[p.name], p.name)
+    return args
+
+
+def encode_request(op: Operation, args: Mapping[str, Any] | None = None,
+                   encoding: Encoding = Encoding.MSGPACK) -> bytes:
+    """A request for ``op``; ``args`` holds Python values (or their wire form)."""
+    args = dict(args or {})
+    names = [p.name for p in op.inputs]
+    extra = set(args) - set(names)
+    if extra:
+        raise WireError(sorted(extra)[0], f"unexpected parameter of {op.name}; valid: {names}")
+    out = {}
+    for p in op.inputs:
+        if p.name not in args:
+            raise WireError(p.name, f"missing parameter of {op.name}")
+        v = args[p.name]
+        out[p.name] = v if _is_wire(v) else p.type.encode(v)
+    return dumps(out, encoding)
+
+
+def _is_wire(v: Any) -> bool:
+    return isinstance(v, (int, float, str, bool, list, dict)) and not isinstance(v, enum.Enum)
+
+
+@dataclasses.dataclass(frozen=True)
+class Reply:
+    """``RETURN_ID`` plus the ``out`` parameters (present only when ``id == OK``)."""
+
+    id: int
+    comment: str
+    outs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.id == ReturnCode.OK
+
+    def __getitem__(self, name: str) -> Any:
+        return self.outs[name]
+
+
+def encode_reply(op: Operation, reply: Reply, encoding: Encoding = Encoding.MSGPACK) -> bytes:
+    out: dict[str, Any] = {"id": int(reply.id), "comment": reply.comment}
+    if reply.id == ReturnCode.OK:
+        for p in op.outputs:
+            out[p.name] = p.type.encode(reply.outs[p.name])
+    return dumps(out, encoding)
+
+
+def decode_reply(op: Operation, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Reply:
+    """A reply to ``op``, strictly checked; ``outs`` hold Python values."""
+    value = loads(payload, encoding)
+    if not isinstance(value, dict):
+        raise WireError("payload", "a reply must be a map")
+    code = LONG.decode(value.get("id"), "id")
+    comment = STRING.decode(value.get("comment"), "comment")
+    outs = {}
+    if code == ReturnCode.OK:
+        for p in op.outputs:
+            if p.name not in value:
+                raise WireError(p.name, f"missing out parameter of {op.name}")
+            outs[p.name] = p.type.decode(value[p.name], p.name)
+    return Reply(code, comment, outs)
+
+
+def encode_message(kind: StructType, value: Any, encoding: Encoding = Encoding.MSGPACK) -> bytes:
+    return dumps(kind.encode(value), encoding)
+
+
+def decode_message(kind: StructType, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
+    return kind.decode(loads(payload, encoding), "")

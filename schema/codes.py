@@ -1,0 +1,54 @@
+"""Return codes, alarm codes and state bits of the specification (SPEC.md §4)."""
+
+from __future__ import annotations
+
+import enum
+
+
+class ReturnCode(enum.IntEnum):
+    """``RETURN_ID.id``: the outcome of every operation."""
+
+    OK = 0
+    NG = -1
+    STATUS_ERR = -2
+    VALUE_ERR = -3
+    NOT_SV_ON_ERR = -4
+    FULL_MOTION_QUEUE_ERR = -5
+    NOT_IMPLEMENTED = -6
+
+
+class AlarmType(enum.Enum):
+    """``AlarmType``: FAULT is unrecoverable without servoON, WARNING recoverable."""
+
+    FAULT = "FAULT"
+    WARNING = "WARNING"
+    UNKNOWN = "UNKNOWN"
+
+
+class AlarmCode(enum.IntEnum):
+    """``Alarm.code``: 0x01-0x05 from the specification, >= 0x400 model-specific."""
+
+    EMERGENCY_STOP = 0x01
+    OVERLOAD = 0x02
+    OVERSPEED = 0x03
+    SOFT_LIMIT_JOINT = 0x04
+    SOFT_LIMIT_CARTESIAN = 0x05
+
+
+class StateBit(enum.IntFlag):
+    """``getState`` bits. The IDL names 0x01-0x08; the prose adds 0x10 (paused)."""
+
+    SERVO_ON = 0x01  # CONST_BINARY_00000001, isServoOn
+    MOVING = 0x02  # CONST_BINARY_00000010, isMoving
+    ALARM = 0x04  # CONST_BINARY_00000100, isAlarmed
+    BUFFER_FULL = 0x08  # CONST_BINARY_00001000, isBufferFull (middle level only)
+    PAUSED = 0x10  # paused (middle level only)
+
+
+# The IDL constant names, so that a search for them lands here.
+CONST_BINARY_00000001 = StateBit.SERVO_ON
+CONST_BINARY_00000010 = StateBit.MOVING
+CONST_BINARY_00000100 = StateBit.ALARM
+CONST_BINARY_00001000 = StateBit.BUFFER_FULL
+
+ULONG_MAX = 2**32 - 1

@@ -1,0 +1,102 @@
+"""Published messages: the public topics of WIRE.md and the internal ones.
+
+Messages are relaxed structs: a reader ignores members it does not know, so a
+publisher may add fields without breaking older subscribers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from . import wire_types as w
+from .types import Alarm, Time
+from .wire_types import Member, StructType
+
+
+@dataclasses.dataclass(frozen=True)
+class StateMessage:
+    """``JARA_ARM/<arm>/state``: the state bits, on every change."""
+
+    state: int
+
+
+@dataclasses.dataclass(frozen=True)
+class AlarmEvent:
+    """``JARA_ARM/<arm>/alarm``: an alarm raised or cleared."""
+
+    event: str  # "raised" | "cleared"
+    alarm: Alarm
+
+
+@dataclasses.dataclass(frozen=True)
+class LogRecord:
+    """``JARA_ARM/<arm>/log/<service>``: one Python logging record."""
+
+    t: float  # [s] Unix time
+    level: str  # DEBUG, INFO, WARNING, ERROR, CRITICAL
+    service: str
+    msg: str
+    logger: str
+
+
+@dataclasses.dataclass(frozen=True)
+class ServoStatus:
+    """``Servo/status``: what the planner and the alarm monitor need from the servo loop."""
+
+    tm: Time
+    servoOn: bool
+    moving: bool
+    alarm: bool
+    fifoDepth: int  # commands waiting in the SyncFIFO
+    consumed: int  # commands taken from the FIFO since the servo started
+    received: int  # commands received since the servo started
+    underruns: int  # cycles the FIFO was empty while the arm was moving, since start
+    vel: tuple[float, ...]  # [rad/s or m/s] measured joint velocities
+    effort: tuple[float, ...]  # [N m or N] measured joint efforts
+    target: tuple[float, ...]  # [rad or m] joint target applied this cycle
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopHealth:
+    """``Servo/health``: the servo loop's timing since the previous report."""
+
+    tm: Time
+    cycles: int  # cycles run in the window
+    period: float  # [s] nominal cycle period
+    latenessP50: float  # [s] start of cycle after its deadline
+    latenessP99: float  # [s]
+    latenessMax: float  # [s]
+    lateCycles: int  # cycles that started more than one period late
+    overruns: int  # cycles whose work took longer than one period
+    fifoDepth: int
+    underruns: int  # in the window
+
+
+STATE_MESSAGE = StructType(StateMessage, (Member("state", w.ULONG),), strict=False,
+                           doc="State bits; extra members may follow.")
+ALARM_EVENT = StructType(AlarmEvent, (
+    Member("event", w.STRING, doc='"raised" or "cleared"'), Member("alarm", w.ALARM),
+), strict=False)
+LOG_RECORD = StructType(LogRecord, (
+    Member("t", w.DOUBLE, "s", "Unix time"), Member("level", w.STRING), Member("service", w.STRING),
+    Member("msg", w.STRING), Member("logger", w.STRING),
+), strict=False)
+_SEQ = w.DOUBLE_SEQ
+SERVO_STATUS = StructType(ServoStatus, (
+    Member("tm", w.TIME), Member("servoOn", w.BOOLEAN), Member("moving", w.BOOLEAN),
+    Member("alarm", w.BOOLEAN), Member("fifoDepth", w.ULONG), Member("consumed", w.ULONG),
+    Member("received", w.ULONG), Member("underruns", w.ULONG),
+    Member("vel", _SEQ, "rad/s or m/s"), Member("effort", _SEQ, "N m or N"),
+    Member("target", _SEQ, "rad or m"),
+), strict=False, doc="Internal: servo loop status, published every few cycles.")
+LOOP_HEALTH = StructType(LoopHealth, (
+    Member("tm", w.TIME), Member("cycles", w.ULONG), Member("period", w.DOUBLE, "s"),
+    Member("latenessP50", w.DOUBLE, "s"), Member("latenessP99", w.DOUBLE, "s"),
+    Member("latenessMax", w.DOUBLE, "s"), Member("lateCycles", w.ULONG),
+    Member("overruns", w.ULONG), Member("fifoDepth", w.ULONG), Member("underruns", w.ULONG),
+), strict=False, doc="Internal: servo loop timing over the last window (about 1 s).")
+
+#: Every message type, for the generated JSON Schema.
+MESSAGES: tuple[StructType, ...] = (
+    w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_STATUS, LOOP_HEALTH,
+)

@@ -1,0 +1,164 @@
+"""The 44 operations of the two IDL interfaces (SPEC.md §6-7), as data.
+
+``COMMON`` (9 operations, served at ``Common/<op>`` by the command service and
+at ``Servo/Common/<op>`` by the servo) and ``MIDDLE`` (35 operations, served at
+``Middle/<op>``). Every parameter carries its wire type and unit; services and
+clients look operations up here and never spell their names by hand.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from collections.abc import Mapping
+from types import MappingProxyType
+
+from . import wire_types as w
+from .errors import UnknownOperationError
+from .wire_types import Member
+
+
+class Interface(enum.Enum):
+    """An IDL interface; its value is the key-expression chunk it is served under."""
+
+    COMMON = "Common"
+    MIDDLE = "Middle"
+
+    @property
+    def idl_name(self) -> str:
+        return f"ManipulatorCommonInterface_{self.value}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Operation:
+    """One IDL operation: ``RETURN_ID name(in ..., out ...)``."""
+
+    name: str
+    interface: Interface
+    inputs: tuple[Member, ...]
+    outputs: tuple[Member, ...]
+    doc: str
+    #: A motion command: queued, refused while the servo is off or alarmed.
+    motion: bool = False
+
+
+def _op(interface: Interface, name: str, doc: str, inputs=(), outputs=(), motion=False) -> Operation:
+    return Operation(name, interface, tuple(inputs), tuple(outputs), doc, motion)
+
+
+_C, _M = Interface.COMMON, Interface.MIDDLE
+_CAR = "m, rad"
+_AXIS = "rad or m"
+
+_COMMON = (
+    _op(_C, "clearAlarms", "Clear the active alarms whose cause has gone."),
+    _op(_C, "getActiveAlarm", "The active alarms; an empty sequence when none.",
+        outputs=[Member("alarms", w.ALARM_SEQ)]),
+    _op(_C, "getFeedbackPosJoint", "Joint position feedback, J1..Jn then the gripper.",
+        outputs=[Member("pos", w.JOINT_POS, _AXIS)]),
+    _op(_C, "getManipInfo", "Manipulator information.", outputs=[Member("mInfo", w.MANIP_INFO)]),
+    _op(_C, "getSoftLimitJoint", "Joint soft limits, one per axis (gripper excluded).",
+        outputs=[Member("softLimit", w.LIMIT_SEQ, _AXIS)]),
+    _op(_C, "getState", "State bits: 0x01 servo on, 0x02 moving, 0x04 alarm, "
+        "0x08 buffer full, 0x10 paused.", outputs=[Member("state", w.ULONG)]),
+    _op(_C, "servoOFF", "All axes servo off; brakes hold the joints."),
+    _op(_C, "servoON", "All axes servo on."),
+    _op(_C, "setSoftLimitJoint", "Set the joint soft limits, one per axis; refused while "
+        "moving or alarmed.", inputs=[Member("softLimit", w.LIMIT_SEQ, _AXIS)]),
+)
+
+_CARPOINT = [Member("carPoint", w.CAR_POS_WITH_ELBOW, _CAR)]
+_CIRC = [Member("carPointR", w.CAR_POS_WITH_ELBOW, _CAR, "via point"),
+         Member("carPointT", w.CAR_POS_WITH_ELBOW, _CAR, "target")]
+_ACL = [Member("aclTime", w.DOUBLE, "s")]
+_LIMITS = [Member(n, w.LIMIT_VALUE, "m") for n in ("xLimit", "yLimit", "zLimit")]
+
+_MIDDLE = (
+    _op(_M, "closeGripper", "Close the gripper fully.", motion=True),
+    _op(_M, "getBaseOffset", "Base offset: the robot frame seen from the arm frame.",
+        outputs=[Member("offset", w.HG_MATRIX, _CAR)]),
+    _op(_M, "getFeedbackPosCartesian", "Control-point pose in the robot frame.",
+        outputs=[Member("pos", w.CAR_POS_WITH_ELBOW, _CAR)]),
+    _op(_M, "getMaxSpeedCartesian", "Cartesian max translation and rotation speed.",
+        outputs=[Member("speed", w.CARTESIAN_SPEED)]),
+    _op(_M, "getMaxSpeedJoint", "Per-axis max speed.",
+        outputs=[Member("speed", w.DOUBLE_SEQ, "rad/s or m/s")]),
+    _op(_M, "getMinAccelTimeCartesian", "Minimum time to accelerate to max speed (Cartesian).",
+        outputs=_ACL),
+    _op(_M, "getMinAccelTimeJoint", "Minimum time to accelerate to max speed (joint).",
+        outputs=_ACL),
+    _op(_M, "getSoftLimitCartesian", "Cartesian soft limits in the robot frame.",
+        outputs=_LIMITS),
+    _op(_M, "moveGripper", "Gripper opening: 0 % fully closed, 100 % fully open.",
+        inputs=[Member("angleRatio", w.ULONG, "%")], motion=True),
+    _op(_M, "moveLinearCartesianAbs", "LIN to an absolute target.", inputs=_CARPOINT, motion=True),
+    _op(_M, "moveLinearCartesianRel", "LIN to a relative target.", inputs=_CARPOINT, motion=True),
+    _op(_M, "movePTPCartesianAbs", "PTP (joint interpolation) to an absolute Cartesian target.",
+        inputs=_CARPOINT, motion=True),
+    _op(_M, "movePTPCartesianRel", "PTP (joint interpolation) to a relative Cartesian target.",
+        inputs=_CARPOINT, motion=True),
+    _op(_M, "movePTPJointAbs", "PTP to an absolute joint target, J1, J2, ...",
+        inputs=[Member("jointPoints", w.JOINT_POS, _AXIS)], motion=True),
+    _op(_M, "movePTPJointRel", "PTP to a relative joint target, J1, J2, ...",
+        inputs=[Member("jointPoints", w.JOINT_POS, _AXIS)], motion=True),
+    _op(_M, "openGripper", "Open the gripper fully.", motion=True),
+    _op(_M, "pause", "Decelerate along the path and hold."),
+    _op(_M, "resume", "Continue the paused path."),
+    _op(_M, "stop", "Decelerate along the path and discard every queued motion."),
+    _op(_M, "setAccelTimeCartesian", "Acceleration time of Cartesian moves; not below the "
+        "minimum.", inputs=_ACL),
+    _op(_M, "setAccelTimeJoint", "Acceleration time of joint moves; not below the minimum.",
+        inputs=_ACL),
+    _op(_M, "setBaseOffset", "Set the base offset.", inputs=[Member("offset", w.HG_MATRIX, _CAR)]),
+    _op(_M, "setControlPointOffset", "Set the control point offset from the flange.",
+        inputs=[Member("offset", w.HG_MATRIX, _CAR)]),
+    _op(_M, "setMaxSpeedCartesian", "Set the Cartesian max speeds.",
+        inputs=[Member("speed", w.CARTESIAN_SPEED)]),
+    _op(_M, "setMaxSpeedJoint", "Set the per-axis max speeds.",
+        inputs=[Member("speed", w.DOUBLE_SEQ, "rad/s or m/s")]),
+    _op(_M, "setMinAccelTimeCartesian", "Set the Cartesian minimum acceleration time.",
+        inputs=_ACL),
+    _op(_M, "setMinAccelTimeJoint", "Set the joint minimum acceleration time.", inputs=_ACL),
+    _op(_M, "setSoftLimitCartesian", "Set the Cartesian soft limits in the robot frame.",
+        inputs=_LIMITS),
+    _op(_M, "setSpeedCartesian", "Cartesian speed as % of max (0 .. 100).",
+        inputs=[Member("spdRatio", w.ULONG, "%")]),
+    _op(_M, "setSpeedJoint", "Joint speed as % of max (0 .. 100).",
+        inputs=[Member("spdRatio", w.ULONG, "%")]),
+    _op(_M, "moveCircularCartesianAbs", "CIRC through via point R to target T (absolute).",
+        inputs=_CIRC, motion=True),
+    _op(_M, "moveCircularCartesianRel", "CIRC through via point R to target T (relative).",
+        inputs=_CIRC, motion=True),
+    _op(_M, "setHome", "Set the home position (absolute joint coordinates).",
+        inputs=[Member("jointPoint", w.JOINT_POS, _AXIS)]),
+    _op(_M, "getHome", "The home position.", outputs=[Member("jointPoint", w.JOINT_POS, _AXIS)]),
+    _op(_M, "goHome", "PTP to the home position.", motion=True),
+)
+
+COMMON: Mapping[str, Operation] = MappingProxyType({op.name: op for op in _COMMON})
+MIDDLE: Mapping[str, Operation] = MappingProxyType({op.name: op for op in _MIDDLE})
+TABLES: Mapping[Interface, Mapping[str, Operation]] = MappingProxyType(
+    {Interface.COMMON: COMMON, Interface.MIDDLE: MIDDLE}
+)
+ALL: tuple[Operation, ...] = _COMMON + _MIDDLE
+
+
+def operation(interface: Interface, name: str) -> Operation:
+    """The operation ``name`` of ``interface``; raises UnknownOperationError listing the valid ones."""
+    table = TABLES[interface]
+    try:
+        return table[name]
+    except KeyError:
+        raise UnknownOperationError(interface.value, name, list(table)) from None
+
+
+class _Ops:
+    """Attribute access to operation names (``OP.movePTPJointAbs``), checked at import."""
+
+    def __init__(self, ops: tuple[Operation, ...]) -> None:
+        for op in ops:
+            setattr(self, op.name, op.name)
+
+
+#: ``OP.getState == "getState"``: lets code name operations without string literals.
+OP = _Ops(ALL)

@@ -1,0 +1,1 @@
+"""Planner service: paths, Ruckig timing, Pinocchio kinematics, the position-command stream."""
