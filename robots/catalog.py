@@ -49,7 +49,114 @@ PANDA = RobotModel(
     gripper_effort=70.0,
 )
 
-ROBOTS: Mapping[str, RobotModel] = MappingProxyType({r.name: r for r in (IIWA, PANDA)})
+_URDF = Path(__file__).with_name("urdf")
+_SIM = "JARA sim"  # invented models of this project; not a vendor's product
+
+#: 1-axis linear axis; X stroke 1 m; flange on the carriage, frame parallel to the base.
+CARTESIAN1 = RobotModel(
+    name="cartesian1",
+    manufacturer=_SIM,
+    type="SIM-C1 1-axis linear gantry",
+    family=Family.CARTESIAN,
+    urdf=_URDF / "cartesian1.urdf",
+    arm_joints=("x_axis",),
+    flange_frame="flange",
+    rated_speed=(1.5,),
+    rated_effort=(500.0,),
+    min_accel_time=0.15,
+    min_accel_time_cartesian=0.15,
+    ready_pose=(0.5,),
+)
+
+#: 2-axis XY gantry: J1 = X (1 m), J2 = Y (0.6 m).
+CARTESIAN2 = RobotModel(
+    name="cartesian2",
+    manufacturer=_SIM,
+    type="SIM-C2 2-axis XY gantry",
+    family=Family.CARTESIAN,
+    urdf=_URDF / "cartesian2.urdf",
+    arm_joints=("x_axis", "y_axis"),
+    flange_frame="flange",
+    rated_speed=(1.5, 1.5),
+    rated_effort=(500.0, 300.0),
+    min_accel_time=0.15,
+    min_accel_time_cartesian=0.15,
+    ready_pose=(0.5, 0.3),
+)
+
+#: 3-axis XYZ portal gantry (1 x 0.6 x 0.3 m, J3 = 0 lowest) with a parallel gripper:
+#: both fingers are one gripper axis [m per finger], 0 closed .. 0.04 open.
+CARTESIAN3 = RobotModel(
+    name="cartesian3",
+    manufacturer=_SIM,
+    type="SIM-C3 3-axis XYZ gantry",
+    family=Family.CARTESIAN,
+    urdf=_URDF / "cartesian3.urdf",
+    arm_joints=("x_axis", "y_axis", "z_axis"),
+    flange_frame="flange",
+    rated_speed=(1.5, 1.5, 1.0),
+    rated_effort=(600.0, 300.0, 250.0),
+    min_accel_time=0.15,
+    min_accel_time_cartesian=0.15,
+    ready_pose=(0.5, 0.3, 0.15),
+    gripper_joints=("finger_joint1", "finger_joint2"),
+    gripper_speed=0.1,
+    gripper_effort=40.0,
+)
+
+#: 4-axis SCARA, 325 + 275 mm arms (0.6 m reach), quill J3 -0.2 (down) .. 0 m; flange frame
+#: parallel to the base, so the tool orientation is J1 + J2 + J4 about Z.
+SCARA4 = RobotModel(
+    name="scara4",
+    manufacturer=_SIM,
+    type="SIM-S4 600 mm SCARA",
+    family=Family.SCARA,
+    urdf=_URDF / "scara4.urdf",
+    arm_joints=("joint1", "joint2", "joint3", "joint4"),
+    flange_frame="flange",
+    rated_speed=(7.0, 7.0, 1.1, 12.0),
+    rated_effort=(150.0, 60.0, 150.0, 6.0),
+    min_accel_time=0.15,
+    min_accel_time_cartesian=0.15,
+    ready_pose=(0.0, 1.5, -0.1, 0.0),
+)
+
+#: 5-axis arm (yaw, pitch, pitch, pitch, roll), 0.28 + 0.25 + 0.08 m; zero pose upright.
+ARM5 = RobotModel(
+    name="arm5",
+    manufacturer=_SIM,
+    type="SIM-A5 5-axis articulated arm",
+    family=Family.ARTICULATED,
+    urdf=_URDF / "arm5.urdf",
+    arm_joints=tuple(f"joint{i}" for i in range(1, 6)),
+    flange_frame="flange",
+    rated_speed=(2.0, 2.0, 2.5, 3.0, 3.0),
+    rated_effort=(40.0, 60.0, 30.0, 10.0, 5.0),
+    min_accel_time=0.3,
+    min_accel_time_cartesian=0.3,
+    ready_pose=(0.0, 0.3, 1.3, 1.4, 0.0),
+)
+
+#: 6-axis arm, spherical wrist, ~0.8 m reach (IRB-style: zero pose upper arm up, forearm
+#: along +X); ready pose has the tool pointing down, elbow and wrist bent.
+ARM6 = RobotModel(
+    name="arm6",
+    manufacturer=_SIM,
+    type="SIM-A6 6-axis articulated arm",
+    family=Family.ARTICULATED,
+    urdf=_URDF / "arm6.urdf",
+    arm_joints=tuple(f"joint{i}" for i in range(1, 7)),
+    flange_frame="flange",
+    rated_speed=(2.5, 2.5, 2.5, 3.0, 3.0, 3.0),
+    rated_effort=(120.0, 200.0, 100.0, 30.0, 30.0, 10.0),
+    min_accel_time=0.25,
+    min_accel_time_cartesian=0.25,
+    ready_pose=(0.0, 0.2, 0.2, 0.0, 1.17, 0.0),
+)
+
+ROBOTS: Mapping[str, RobotModel] = MappingProxyType(
+    {r.name: r for r in (IIWA, PANDA, CARTESIAN1, CARTESIAN2, CARTESIAN3, SCARA4, ARM5, ARM6)}
+)
 DEFAULT_ROBOT = IIWA.name
 
 

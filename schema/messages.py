@@ -70,6 +70,11 @@ class LoopHealth:
     overruns: int  # cycles whose work took longer than one period
     fifoDepth: int
     underruns: int  # in the window
+    latenessHist: tuple[int, ...]  # cycles per lateness bin, edges LATENESS_BIN_EDGES
+
+
+#: Lower edges of the ``LoopHealth.latenessHist`` bins [s]; the last bin is open-ended.
+LATENESS_BIN_EDGES: tuple[float, ...] = (0.0, 50e-6, 100e-6, 200e-6, 500e-6, 1e-3, 2e-3, 5e-3, 10e-3)
 
 
 STATE_MESSAGE = StructType(StateMessage, (Member("state", w.ULONG),), strict=False,
@@ -94,6 +99,8 @@ LOOP_HEALTH = StructType(LoopHealth, (
     Member("latenessP50", w.DOUBLE, "s"), Member("latenessP99", w.DOUBLE, "s"),
     Member("latenessMax", w.DOUBLE, "s"), Member("lateCycles", w.ULONG),
     Member("overruns", w.ULONG), Member("fifoDepth", w.ULONG), Member("underruns", w.ULONG),
+    Member("latenessHist", w.SeqType("ULONGSeq", w.ULONG),
+           doc=f"cycles per lateness bin; bin lower edges [s]: {list(LATENESS_BIN_EDGES)}"),
 ), strict=False, doc="Internal: servo loop timing over the last window (about 1 s).")
 
 #: Every message type, for the generated JSON Schema.

@@ -1,0 +1,79 @@
+"""Python logging to stderr and to ``JARA_ARM/<arm>/log/<service>``.
+
+``emit`` only appends to a deque; a thread of its own publishes, so that a log
+call never blocks a Zenoh callback or the servo loop.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import sys
+import threading
+
+import zenoh
+
+from jara_arm.schema import codec, messages
+from jara_arm.schema.keys import ArmKeys, Service
+
+FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
+_QUEUE_LIMIT = 10_000  # records kept while Zenoh is slow; the oldest are dropped
+
+
+def setup_stderr(level: str = "INFO") -> None:
+    """Log to stderr at ``level`` (the service's own stderr, always on)."""
+    root = logging.getLogger()
+    root.setLevel(level.upper())
+    if not any(getattr(h, "_jara_stderr", False) for h in root.handlers):
+        h = logging.StreamHandler(sys.stderr)
+        h.setFormatter(logging.Formatter(FORMAT))
+        h._jara_stderr = True  # type: ignore[attr-defined]
+        root.addHandler(h)
+
+
+class ZenohLogHandler(logging.Handler):
+    """Publishes every record as a ``LogRecord`` message on the service's log key."""
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, service: Service) -> None:
+        super().__init__()
+        self._service = service
+        self._pending: collections.deque[logging.LogRecord] = collections.deque(maxlen=_QUEUE_LIMIT)
+        self._wake = threading.Event()
+        self._closed = False
+        self._publisher = session.declare_publisher(keys.log(service))
+        self._thread = threading.Thread(target=self._run, name="log-publisher", daemon=True)
+        self._thread.start()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self._pending.append(record)
+        self._wake.set()
+
+    def _run(self) -> None:
+        while True:
+            self._wake.wait(0.5)
+            self._wake.clear()
+            while self._pending:
+                self._publish(self._pending.popleft())
+            if self._closed:
+                return
+
+    def _publish(self, record: logging.LogRecord) -> None:
+        try:
+            msg = record.getMessage()
+            if record.exc_info:
+                msg += "\n" + logging.Formatter().formatException(record.exc_info)
+            payload = codec.encode_message(messages.LOG_RECORD, messages.LogRecord(
+                record.created, record.levelname, self._service.value, msg, record.name))
+            self._publisher.put(payload)
+        except Exception:  # a log that cannot be published must not take the service down
+            pass
+
+    def close(self) -> None:
+        self._closed = True
+        self._wake.set()
+        self._thread.join(timeout=2.0)
+        try:
+            self._publisher.undeclare()
+        except Exception:
+            pass
+        super().close()

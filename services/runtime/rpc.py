@@ -1,0 +1,108 @@
+"""Serve an IDL interface as Zenoh queryables, one handler method per operation.
+
+A handler is any object with methods named exactly as the IDL operations
+(``def getState(self) -> Reply``), taking the decoded ``in`` parameters as
+keyword arguments. The Zenoh side only hands queries to a channel; one worker
+thread decodes, calls the handler and replies, so that replies keep the order
+of the queries and nothing runs on Zenoh's own threads.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Mapping
+from typing import Any
+
+import zenoh
+
+from jara_arm.schema import codec
+from jara_arm.schema.codec import Encoding, Reply
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.keys import op_of
+from jara_arm.schema.operations import Operation
+
+log = logging.getLogger(__name__)
+
+_ZENOH_ENCODING = {Encoding.JSON: zenoh.Encoding.APPLICATION_JSON,
+                   Encoding.MSGPACK: zenoh.Encoding("application/msgpack")}
+_CHANNEL_CAPACITY = 1024
+
+
+def ok(comment: str = "OK", **outs: Any) -> Reply:
+    return Reply(ReturnCode.OK, comment, outs)
+
+
+def refuse(code: ReturnCode, comment: str) -> Reply:
+    return Reply(code, comment)
+
+
+def answer(op: Operation | None, payload: bytes, encoding: Encoding, handler: object,
+           name: str) -> Reply:
+    """The reply to one query: decode strictly, call the handler, never raise."""
+    if op is None:
+        return refuse(ReturnCode.NOT_IMPLEMENTED, f"no operation {name!r} in this interface")
+    try:
+        args = codec.decode_request(op, payload, encoding)
+    except WireError as exc:
+        return refuse(ReturnCode.VALUE_ERR, str(exc))
+    try:
+        reply = getattr(handler, op.name)(**args)
+    except WireError as exc:  # a handler's own check of a value, field named
+        return refuse(ReturnCode.VALUE_ERR, str(exc))
+    except Exception as exc:  # a bug of ours must not kill the service or leave a query unanswered
+        log.exception("%s failed", op.name)
+        return refuse(ReturnCode.NG, f"internal error in {op.name}: {exc}")
+    return reply
+
+
+class InterfaceServer:
+    """Queryable ``key_all`` (``.../<Interface>/*``) answered by ``handler``."""
+
+    def __init__(self, session: zenoh.Session, key_all: str, table: Mapping[str, Operation],
+                 handler: object, name: str = "rpc") -> None:
+        missing = [op for op in table if not callable(getattr(handler, op, None))]
+        if missing:
+            raise TypeError(f"{type(handler).__name__} lacks operations {missing}")
+        self._table, self._handler = table, handler
+        self._queryable = session.declare_queryable(key_all, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
+        self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while True:
+            try:
+                query = self._queryable.recv()
+            except Exception:  # the queryable was undeclared: we are shutting down
+                return
+            try:
+                self._reply(query)
+            except Exception:
+                log.exception("could not reply to %s", query.key_expr)
+            finally:
+                query.drop()  # sends the final reply marker now, not at garbage collection
+
+    def _reply(self, query: zenoh.Query) -> None:
+        name = op_of(query.key_expr)
+        encoding = Encoding.of(query.encoding)
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        op = self._table.get(name)
+        reply = answer(op, payload, encoding, self._handler, name)
+        if op is None:
+            body = codec.dumps({"id": int(reply.id), "comment": reply.comment}, encoding)
+        else:
+            try:
+                body = codec.encode_reply(op, reply, encoding)
+            except Exception as exc:
+                log.exception("%s produced a reply that cannot be encoded", name)
+                body = codec.dumps({"id": int(ReturnCode.NG),
+                                    "comment": f"internal error in {name}: {exc}"}, encoding)
+        query.reply(query.key_expr, body, encoding=_ZENOH_ENCODING[encoding])
+
+    def close(self) -> None:
+        try:
+            self._queryable.undeclare()
+        except Exception:  # recv() may hold it; closing the session ends the worker then
+            pass
+        self._thread.join(timeout=0.2)

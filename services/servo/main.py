@@ -1,0 +1,114 @@
+"""The servo service (low-level ACT): PyBullet arm, fixed-period loop, ``Servo/Common``.
+
+``python -m jara_arm.services.servo --arm arm0 --robot iiwa --listen tcp/127.0.0.1:7447``
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+from collections.abc import Sequence
+
+import zenoh
+
+from jara_arm.robots import RobotModel
+from jara_arm.schema.codec import Reply
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.keys import Service
+from jara_arm.schema.operations import COMMON
+from jara_arm.schema.types import LimitValue
+from jara_arm.services.runtime.rpc import InterfaceServer, ok, refuse
+from jara_arm.services.runtime.service import announce, run_service, service_session
+
+from .loop import DEFAULT_RT_PRIORITY, ServoLoop
+
+log = logging.getLogger("jara_arm.servo")
+
+
+class ServoCommon:
+    """``ManipulatorCommonInterface_Common`` of the low level, one method per IDL operation."""
+
+    def __init__(self, loop: ServoLoop) -> None:
+        self.loop = loop
+        self.model = loop.model
+
+    def clearAlarms(self) -> Reply:
+        cleared, kept = self.loop.call(self.loop.clear_alarms_now)
+        if kept:
+            return refuse(ReturnCode.STATUS_ERR, "cause still present, not cleared: " + "; ".join(
+                f"0x{a.code:02x} {a.description}" for a in kept)
+                + (f" (cleared: {', '.join(f'0x{a.code:02x}' for a in cleared)})" if cleared else ""))
+        return ok("OK" if cleared else "OK: no active alarm")
+
+    def getActiveAlarm(self) -> Reply:
+        return ok(alarms=tuple(self.loop.alarms.values()))
+
+    def getFeedbackPosJoint(self) -> Reply:
+        return ok(pos=tuple(self.loop.fb_pos.tolist()))
+
+    def getManipInfo(self) -> Reply:
+        return ok(mInfo=self.model.manip_info)
+
+    def getSoftLimitJoint(self) -> Reply:
+        return ok(softLimit=self.loop.soft_limits)
+
+    def getState(self) -> Reply:
+        return ok(state=self.loop.state_bits)
+
+    def servoOFF(self) -> Reply:
+        self.loop.call(self.loop.servo_off_now)
+        return ok()
+
+    def servoON(self) -> Reply:
+        why = self.loop.call(self.loop.servo_on_now)
+        return refuse(ReturnCode.STATUS_ERR, f"servoON refused: {why}") if why else ok()
+
+    def setSoftLimitJoint(self, softLimit: tuple[LimitValue, ...]) -> Reply:
+        check_soft_limits(softLimit, self.model)
+        why = self.loop.call(lambda: self.loop.set_soft_limits_now(softLimit))
+        return refuse(ReturnCode.STATUS_ERR, f"setSoftLimitJoint refused: {why}") if why else ok()
+
+
+def check_soft_limits(limits: Sequence[LimitValue], model: RobotModel) -> None:
+    """WireError (VALUE_ERR) unless one ``lower < upper`` per axis, inside the hard limits."""
+    if len(limits) != model.axis_num:
+        raise WireError("softLimit", f"expected {model.axis_num} entries (one per axis, "
+                        f"gripper excluded), got {len(limits)}")
+    for i, (lim, hard) in enumerate(zip(limits, model.hard_limits)):
+        if not lim.lower < lim.upper:
+            raise WireError(f"softLimit[{i}]", f"lower {lim.lower} must be below upper {lim.upper}")
+        if lim.lower < hard.lower or lim.upper > hard.upper:
+            raise WireError(f"softLimit[{i}]", f"[{lim.lower}, {lim.upper}] leaves the hard limits "
+                            f"[{hard.lower}, {hard.upper}] of J{i + 1}")
+
+
+def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
+         realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+    with service_session(conf, arm, Service.SERVO) as (session, keys):
+        loop = ServoLoop(robot, session, keys, realtime_priority)
+        loop.start()
+        server = InterfaceServer(session, keys.servo_common(), COMMON, ServoCommon(loop), "servo-rpc")
+        token = announce(session, keys, Service.SERVO)
+        log.info("servo up: arm %s, robot %s (%d axes%s), cycle %d ms", arm, robot.name,
+                 robot.axis_num, " + gripper" if robot.has_gripper else "", robot.cmd_cycle_ms)
+        try:
+            while not stop.wait(0.2):
+                if not loop.alive:
+                    raise RuntimeError("the servo loop thread died")
+        finally:
+            token.undeclare()
+            server.close()
+            loop.stop()
+            log.info("servo down")
+
+
+def _options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--realtime-priority", type=int, default=DEFAULT_RT_PRIORITY,
+                        metavar="N", help="SCHED_FIFO priority of the loop thread, 1..99; 0 for "
+                        f"normal scheduling (default: {DEFAULT_RT_PRIORITY})")
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    return run_service(Service.SERVO, __doc__.splitlines()[0], main, argv, _options)

@@ -1,0 +1,76 @@
+"""The simulated arm: a PyBullet DIRECT world stepping one servo cycle at a time.
+
+PyBullet is not thread-safe: only the servo loop thread touches a ``World``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet
+import pybullet_data
+
+from jara_arm.robots import RobotModel
+
+#: Position-servo gains of PyBullet's motor constraint: the joint closes most of
+#: its position error within one step, with the commanded velocity fed forward.
+POSITION_GAIN = 0.8  # [-]
+VELOCITY_GAIN = 1.0  # [-]
+
+
+class World:
+    """One robot, fixed base, gravity on, time step = the servo period."""
+
+    def __init__(self, model: RobotModel) -> None:
+        self.model = model
+        self._pb = pybullet.connect(pybullet.DIRECT)
+        pybullet.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=self._pb)
+        pybullet.setGravity(0, 0, -9.81, physicsClientId=self._pb)
+        pybullet.setTimeStep(model.cmd_cycle, physicsClientId=self._pb)
+        self.robot = pybullet.loadURDF(str(model.urdf), basePosition=model.base_position,
+                                       useFixedBase=True, physicsClientId=self._pb)
+        index = {}
+        for j in range(pybullet.getNumJoints(self.robot, physicsClientId=self._pb)):
+            info = pybullet.getJointInfo(self.robot, j, physicsClientId=self._pb)
+            index[info[1].decode()] = j
+        self._arm = [index[n] for n in model.arm_joints]
+        self._grip = [index[n] for n in model.gripper_joints]
+        # Wire axis k drives these PyBullet joints (the gripper axis drives all fingers).
+        self._joints = self._arm + self._grip
+        self._axis_of_joint = list(range(model.axis_num)) + [model.axis_num] * len(self._grip)
+        self._measured = self._arm + self._grip[:1]  # one joint per wire axis
+        self._forces = list(model.rated_effort) + [model.gripper_effort] * len(self._grip)
+        for j in self._joints:  # PyBullet's default joint motors would fight ours
+            pybullet.changeDynamics(self.robot, j, linearDamping=0, angularDamping=0,
+                                    jointDamping=0.0, physicsClientId=self._pb)
+        home = list(model.ready_pose) + ([model.gripper_limits.upper] if model.has_gripper else [])
+        self.reset(np.array(home))
+
+    def reset(self, q: np.ndarray) -> None:
+        """Place the arm at ``q`` [rad or m] at rest (start-up only)."""
+        for j, k in zip(self._joints, self._axis_of_joint):
+            pybullet.resetJointState(self.robot, j, float(q[k]), 0.0, physicsClientId=self._pb)
+        self.command(q, np.zeros_like(q))
+
+    def command(self, q: np.ndarray, qd: np.ndarray) -> None:
+        """Position target [rad or m] and its velocity [rad/s or m/s], one per wire axis."""
+        k = self._axis_of_joint
+        pybullet.setJointMotorControlArray(
+            self.robot, self._joints, pybullet.POSITION_CONTROL,
+            targetPositions=[float(q[i]) for i in k], targetVelocities=[float(qd[i]) for i in k],
+            forces=self._forces, positionGains=[POSITION_GAIN] * len(k),
+            velocityGains=[VELOCITY_GAIN] * len(k), physicsClientId=self._pb)
+
+    def step(self) -> None:
+        pybullet.stepSimulation(physicsClientId=self._pb)
+
+    def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Measured (position, velocity, effort) per wire axis; the gripper axis is finger 1."""
+        states = pybullet.getJointStates(self.robot, self._measured, physicsClientId=self._pb)
+        pos, vel, _reaction, eff = (np.array(c) for c in zip(*states))
+        return pos, vel, eff
+
+    def close(self) -> None:
+        try:
+            pybullet.disconnect(physicsClientId=self._pb)
+        except pybullet.error:
+            pass
