@@ -12,6 +12,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import math
+from collections.abc import Mapping
 from typing import Any, Generic, TypeVar
 
 import numpy as np
@@ -233,7 +234,9 @@ class StructType(WireType[T]):
             kwargs[m.name] = m.type.decode(value[m.name], f"{prefix}{m.name}")
         return self.cls(**kwargs)
 
-    def encode(self, value: T) -> dict[str, Any]:
+    def encode(self, value: T | Mapping[str, Any]) -> dict[str, Any]:
+        if isinstance(value, Mapping):  # already in wire form, members by name
+            return {m.name: m.type.encode(value[m.name]) for m in self.members}
         return {m.name: m.type.encode(getattr(value, m.name)) for m in self.members}
 
     def json_schema(self) -> dict[str, Any]:

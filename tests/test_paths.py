@@ -178,8 +178,10 @@ def test_arc_random_points_on_circle_through_via() -> None:
         (1.0, 359.9, 359.9, 1.0 / 359.9),
     ],
 )
-def test_arc_direction_contains_via(via_deg: float, end_deg: float, sweep_deg: float, via_fraction: float) -> None:
-    # circle of radius 0.4 in a tilted plane, centre off the origin; angles measured in its plane from p0
+def test_arc_direction_contains_via(
+    via_deg: float, end_deg: float, sweep_deg: float, via_fraction: float
+) -> None:
+    # circle of radius 0.4 in a tilted plane, centre off the origin; angles in its plane from p0
     R = pinocchio.exp3(np.array([0.4, -0.3, 0.2]))
     c = np.array([0.5, -0.2, 0.3])
 

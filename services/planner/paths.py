@@ -115,8 +115,11 @@ def _as_pose(T: ArrayLike, name: str) -> NDArray[np.float64]:
     if not np.allclose(a[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=ROTATION_TOLERANCE):
         raise PathGeometryError(f"{name} last row must be [0, 0, 0, 1]")
     R = a[:3, :3]
-    if np.max(np.abs(R.T @ R - np.eye(3))) > ROTATION_TOLERANCE or abs(np.linalg.det(R) - 1.0) > ROTATION_TOLERANCE:
-        raise PathGeometryError(f"{name} rotation block is not a proper rotation matrix (tolerance {ROTATION_TOLERANCE})")
+    orthonormal_error = np.max(np.abs(R.T @ R - np.eye(3)))
+    if orthonormal_error > ROTATION_TOLERANCE or abs(np.linalg.det(R) - 1.0) > ROTATION_TOLERANCE:
+        raise PathGeometryError(
+            f"{name} rotation block is not a proper rotation matrix (tolerance {ROTATION_TOLERANCE})"
+        )
     a[3] = [0.0, 0.0, 0.0, 1.0]
     return _readonly(a)
 
@@ -191,7 +194,9 @@ class JointLine:
         q0 = np.array(self.q0, dtype=float)
         q1 = np.array(self.q1, dtype=float)
         if q0.ndim != 1 or q0.shape != q1.shape or q0.size == 0:
-            raise PathGeometryError(f"q0 and q1 must be non-empty 1-D and of equal length, got {q0.shape} and {q1.shape}")
+            raise PathGeometryError(
+                f"q0 and q1 must be non-empty 1-D and of equal length, got {q0.shape} and {q1.shape}"
+            )
         if not (np.all(np.isfinite(q0)) and np.all(np.isfinite(q1))):
             raise PathGeometryError("q0 and q1 must be finite")
         object.__setattr__(self, "q0", _readonly(q0))
@@ -316,7 +321,8 @@ class CartesianArc:
         height = n_norm / longest  # [m] smallest distance of a point from the line through the other two
         if height < ARC_TOLERANCE:
             raise PathGeometryError(
-                f"CIRC start, via and target points are collinear (within {ARC_TOLERANCE} m); no unique circle"
+                f"CIRC start, via and target points are collinear (within {ARC_TOLERANCE} m); "
+                "no unique circle"
             )
         # circumcentre of the triangle (p0, pv, p1), relative to p0
         offset = (np.dot(c, c) * np.cross(n, b) + np.dot(b, b) * np.cross(c, n)) / (2.0 * n_norm**2)

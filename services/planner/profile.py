@@ -74,6 +74,7 @@ does not bound the path speed (a move whose every part is negligible takes no
 time: it is the target already)."""
 
 _SAMPLE_EPS = 1e-12  # [-] relative slack so that duration = n·dt exactly does not add a sample
+_STOP_OVERSHOOT = 1e-9  # [-] relative overshoot of the path end that is rounding, not a real overshoot
 
 
 class ProfileError(JaraArmError, ValueError):
@@ -83,7 +84,8 @@ class ProfileError(JaraArmError, ValueError):
 def _positive(name: str, value: float, *, allow_inf: bool = False) -> float:
     x = float(value)
     if math.isnan(x) or x <= 0.0 or (math.isinf(x) and not allow_inf):
-        raise ProfileError(f"{name} must be a positive {'number' if allow_inf else 'finite number'}, got {value!r}")
+        kind = "number" if allow_inf else "finite number"
+        raise ProfileError(f"{name} must be a positive {kind}, got {value!r}")
     return x
 
 
@@ -258,9 +260,12 @@ def stop_profile(length: float, s: float, sd: float, sdd: float, limits: Profile
     """Decelerate from ``(s, sd, sdd)`` to rest along the path within ``limits``.
 
     Time-optimal braking to zero speed and zero acceleration (Ruckig velocity
-    interface).  If that would end past the path end (only possible within
-    rounding, since the running profile itself brakes to the end as hard as
-    allowed), the profile brakes onto the end instead.
+    interface); it never ends later than the running profile would have.  From
+    the deceleration phase of the running profile it retraces that profile and
+    lands on the path end up to rounding, which is clamped.  A state that truly
+    cannot stop before the end (no rest-to-rest profile on this path passes
+    through it) gets a position-target profile onto the end instead; its ``s``
+    is clipped to the end if Ruckig overshoots.
     """
     length = _check_length(length)
     s, sd, sdd = float(s), float(sd), float(sdd)
@@ -278,12 +283,17 @@ def stop_profile(length: float, s: float, sd: float, sdd: float, limits: Profile
     inp.control_interface = ruckig.ControlInterface.Velocity
     traj = _calculate(inp)
     (s_stop,), _, _ = traj.at_time(float(traj.duration))
-    if s_stop >= length:
+    if s_stop > length * (1.0 + _STOP_OVERSHOOT):
+        # Not a state of a profile that ends at `length`: it cannot brake in time.
+        # Brake onto the end instead (Ruckig may then exceed the path and come back).
         inp = _input(limits, s, sd, sdd)
         inp.target_position = [length]
         traj = _calculate(inp)
         s_stop = length
-    return PathProfile(length, limits, s, sd, sdd, max(float(s_stop), s), float(traj.duration), traj)
+    # Braking from the deceleration phase of the running profile retraces it and
+    # lands on the end up to rounding: clamp (at() clips s to [s, s_end]).
+    s_stop = min(max(float(s_stop), s), length)
+    return PathProfile(length, limits, s, sd, sdd, s_stop, float(traj.duration), traj)
 
 
 # --------------------------------------------------------------------------- motions

@@ -44,8 +44,8 @@ OVERSPEED_MARGIN = 1.1
 BRAKE_JERK_TIME = 0.02
 #: Below this speed an axis counts as at rest [rad/s or m/s].
 REST_SPEED = 1e-3
-#: Tolerance when deciding that a soft-limit cause has gone [rad or m].
-LIMIT_TOLERANCE = 1e-6
+#: Tracking tolerance when deciding that a soft-limit cause has gone [rad or m].
+LIMIT_TOLERANCE = 1e-3
 #: Behind schedule by more than this, the loop stops catching up and restarts its clock [s].
 RESYNC_AFTER = 0.1
 STATUS_EVERY = 10  # cycles between ServoStatus messages
@@ -232,7 +232,8 @@ class ServoLoop:
     def _advance(self) -> None:
         """Choose this cycle's target: brake, follow the FIFO, or hold."""
         if self._braking is not None:
-            self.q, self.qd, self.qdd, done = self._braking.next()
+            q, self.qd, self.qdd, done = self._braking.next()
+            self.q = self._inside_soft_limits(q)
             if done:
                 self._braking = None
             return
@@ -251,6 +252,17 @@ class ServoLoop:
             return
         self.qd = np.zeros_like(self.qd)
         self.qdd = np.zeros_like(self.qdd)
+
+    def _inside_soft_limits(self, q: np.ndarray) -> np.ndarray:
+        """``q`` with the arm axes clamped into the soft limits.
+
+        A stop that starts next to a limit may not be able to end before it;
+        the limit wins over smoothness there, as it is the last line of defence.
+        """
+        for i, lim in enumerate(self.soft_limits):
+            if q[i] > lim.upper or q[i] < lim.lower:
+                q[i] = min(max(q[i], lim.lower), lim.upper)
+        return q
 
     def _follow(self, cmd: np.ndarray) -> None:
         step = cmd - self.q

@@ -1,0 +1,706 @@
+"""Kinematics of one arm on Pinocchio: forward kinematics, Jacobian, inverse kinematics, arm angle.
+
+Frames (DECISIONS.md "Frames"):
+
+* **Arm base frame** -- the frame of the URDF root link. :meth:`Kinematics.fk`,
+  :meth:`Kinematics.control_point`, :meth:`Kinematics.jacobian` and
+  :meth:`Kinematics.ik` all work in it.
+* **Flange** -- the URDF link ``RobotModel.flange_frame``.
+* **Control point** -- ``T_cp = T_flange · C``, where ``C`` (the control point
+  offset, the ``tool`` argument) is the pose of the control point in the flange
+  frame; identity when not given.
+* **Robot (reference) frame** -- ``T_robot = inv(B) · T_arm``, where the base
+  offset ``B`` is the pose of the robot frame seen from the arm base frame:
+  :func:`arm_to_robot` / :func:`robot_to_arm`.
+
+Poses are 4x4 homogeneous matrices (``np.ndarray`` of shape (4, 4)); the wire's
+``HgMatrix`` is the top 3x4 block (:func:`hg_to_se3`, :func:`se3_to_hg`).
+Positions are [m], angles [rad]; joint values are [rad] (revolute) or [m]
+(prismatic), always in the order J1..Jn = ``RobotModel.arm_joints``.
+
+A :class:`Kinematics` owns one Pinocchio ``Data`` work area: use one instance
+per thread.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import Final
+
+import eigenpy
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from jara_arm.robots.model import RobotModel
+from jara_arm.schema.errors import JaraArmError
+
+__all__ = [
+    "FULL_MASK",
+    "POSITION_MASK",
+    "IkResult",
+    "Kinematics",
+    "KinematicsError",
+    "Mask",
+    "arm_to_robot",
+    "hg_to_se3",
+    "pose_error",
+    "robot_to_arm",
+    "se3_to_hg",
+]
+
+ArrayLike = npt.ArrayLike
+Mask = tuple[bool, bool, bool, bool, bool, bool]
+"""Which task components IK constrains: (x, y, z, rx, ry, rz) of the arm base frame."""
+
+FULL_MASK: Final[Mask] = (True, True, True, True, True, True)
+POSITION_MASK: Final[Mask] = (True, True, True, False, False, False)
+
+DEFAULT_ELBOW_JOINTS: Final[tuple[int, int, int]] = (1, 3, 5)
+"""Zero-based arm axes whose joint origins are the shoulder, elbow and wrist of a 7-axis arm."""
+
+_TWO_PI: Final = 2.0 * math.pi
+_VERTICAL: Final = 1e-6  # sin(angle) below which the shoulder-wrist line counts as vertical
+
+# IK tuning (see Kinematics.ik). Errors are summed as [m^2] + [rad^2].
+_DAMP_GAIN: Final = 0.1  # Levenberg-Marquardt damping = gain * squared error + floor
+_DAMP_FLOOR: Final = 1e-7
+_STALL_DECREASE: Final = 0.98  # an iteration "progresses" if it cuts the error below this ratio
+_STALL_ITERS: Final = 3  # iterations without progress before a restart
+_ATTEMPT_ITERS: Final = 16  # iterations per attempt before a restart
+_TABLE_RESTARTS: Final = 12  # restarts drawn from the seed table before uniform random ones
+_TABLE_ROT_WEIGHT: Final = 0.1  # [m^2] per unit of (3 - trace(Ra^T Rb)) in the table distance
+_TABLE_ELBOW_WEIGHT: Final = 0.1  # [m^2] per unit of (1 - cos(elbow difference))
+
+
+class KinematicsError(JaraArmError, ValueError):
+    """A kinematics request that cannot be evaluated (bad shape, unknown joint or frame...)."""
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class IkResult:
+    """Outcome of :meth:`Kinematics.ik`.
+
+    On failure ``q`` is the best configuration found (smallest error); it is
+    always within the joint limits used.
+    """
+
+    q: np.ndarray  # [rad or m] per arm axis, J1..Jn
+    success: bool  # True when every tolerance is met
+    iterations: int  # Newton iterations spent, restarts included
+    pos_err: float  # [m] norm of the constrained position error
+    rot_err: float  # [rad] norm of the constrained rotation error (the angle when unmasked)
+    elbow_err: float = 0.0  # [rad] arm angle error, 0 unless an elbow was commanded
+
+
+# ---------------------------------------------------------------------------- frames
+
+
+def _se3(pose: ArrayLike, what: str = "pose") -> pin.SE3:
+    """A Pinocchio SE3 from a 4x4 homogeneous matrix or a 3x4 HgMatrix."""
+    a = np.asarray(pose, dtype=float)
+    if a.shape == (4, 4) or a.shape == (3, 4):
+        return pin.SE3(a[:3, :3], a[:3, 3])
+    raise KinematicsError(f"{what}: expected a 4x4 or 3x4 matrix, got shape {a.shape}")
+
+
+def hg_to_se3(hg: ArrayLike) -> np.ndarray:
+    """4x4 homogeneous matrix from a 3x4 ``HgMatrix`` ([R | p], p in [m])."""
+    a = np.asarray(hg, dtype=float)
+    if a.shape != (3, 4):
+        raise KinematicsError(f"HgMatrix: expected shape (3, 4), got {a.shape}")
+    out = np.eye(4)
+    out[:3] = a
+    return out
+
+
+def se3_to_hg(pose: ArrayLike) -> np.ndarray:
+    """3x4 ``HgMatrix`` ([R | p], p in [m]) from a 4x4 homogeneous matrix."""
+    a = np.asarray(pose, dtype=float)
+    if a.shape != (4, 4):
+        raise KinematicsError(f"pose: expected shape (4, 4), got {a.shape}")
+    return a[:3].copy()
+
+
+def arm_to_robot(pose_arm: ArrayLike, base: ArrayLike | None = None) -> np.ndarray:
+    """Pose in the robot frame, ``inv(B) · T_arm``; ``base`` = B, identity if None (4x4)."""
+    t = _se3(pose_arm)
+    if base is None:
+        return t.homogeneous
+    return _se3(base, "base offset").actInv(t).homogeneous
+
+
+def robot_to_arm(pose_robot: ArrayLike, base: ArrayLike | None = None) -> np.ndarray:
+    """Pose in the arm base frame, ``B · T_robot``; ``base`` = B, identity if None (4x4)."""
+    t = _se3(pose_robot)
+    if base is None:
+        return t.homogeneous
+    return (_se3(base, "base offset") * t).homogeneous
+
+
+def pose_error(a: ArrayLike, b: ArrayLike) -> tuple[float, float]:
+    """(position error [m], rotation angle [rad]) between two poses."""
+    sa, sb = _se3(a), _se3(b)
+    return (float(np.linalg.norm(sa.translation - sb.translation)),
+            float(np.linalg.norm(pin.log3(sa.rotation.T @ sb.rotation))))
+
+
+def _mask(mask: Sequence[bool]) -> Mask:
+    m = tuple(bool(x) for x in mask)
+    if len(m) != 6:
+        raise KinematicsError(f"mask: expected 6 flags (x, y, z, rx, ry, rz), got {len(m)}")
+    if not any(m):
+        raise KinematicsError("mask: at least one component must be constrained")
+    return m  # type: ignore[return-value]
+
+
+# ---------------------------------------------------------------------------- model
+
+
+class Kinematics:
+    """Forward and inverse kinematics of one :class:`RobotModel`, on Pinocchio.
+
+    The Pinocchio model is built from the robot's URDF and reduced to the arm
+    joints: gripper joints are locked at their lower limit (closed), any other
+    non-arm joint at zero (clamped into its limits). Arm joints must be 1-DoF
+    revolute or prismatic joints.
+
+    ``elbow_joints`` (7-axis arms only): the zero-based arm axes whose joint
+    origins are the shoulder, elbow and wrist points of the arm angle; default
+    ``robot.elbow_joints`` if the model defines it, else (1, 3, 5) -- J2, J4, J6.
+
+    ``seed_table`` configurations, drawn uniformly within the hard limits with
+    the RNG ``seed``, are stored with their flange poses; IK restarts from the
+    ones nearest to the target (0 disables the table: uniform random restarts).
+    """
+
+    def __init__(
+        self,
+        robot: RobotModel,
+        *,
+        elbow_joints: Sequence[int] | None = None,
+        seed_table: int = 4096,
+        seed: int = 0,
+    ) -> None:
+        self.robot: Final = robot
+        self._seed = seed
+        full = pin.buildModelFromUrdf(str(robot.urdf))
+        arm = set(robot.arm_joints)
+        for name in robot.arm_joints:
+            if not full.existJointName(name):
+                raise KinematicsError(f"{robot.name}: joint {name!r} not in {robot.urdf}")
+            j = full.joints[full.getJointId(name)]
+            if j.nq != 1 or j.nv != 1:
+                raise KinematicsError(
+                    f"{robot.name}: joint {name!r} is {j.shortname()}; arm joints must be "
+                    "1-DoF revolute or prismatic joints")
+        q_lock = pin.neutral(full)
+        lock = []
+        for jid in range(1, full.njoints):
+            name = full.names[jid]
+            if name in arm:
+                continue
+            lock.append(jid)
+            j = full.joints[jid]
+            if j.nq == 1:
+                lo_, hi_ = full.lowerPositionLimit[j.idx_q], full.upperPositionLimit[j.idx_q]
+                v = lo_ if name in robot.gripper_joints else 0.0
+                if lo_ <= hi_:
+                    v = min(max(v, lo_), hi_)
+                q_lock[j.idx_q] = v
+        model = pin.buildReducedModel(full, lock, q_lock) if lock else full
+        n = robot.axis_num
+        if model.nq != n:  # pragma: no cover - guarded by the checks above
+            raise KinematicsError(f"{robot.name}: reduced model has {model.nq} coordinates, not {n}")
+        if not model.existFrame(robot.flange_frame):
+            raise KinematicsError(f"{robot.name}: flange frame {robot.flange_frame!r} not in URDF")
+
+        self._model = model
+        self._n = n
+        # Pinocchio's coordinate index of arm axis i (identity for a serial URDF in order).
+        self._jids = [model.getJointId(name) for name in robot.arm_joints]
+        idx = np.array([model.joints[j].idx_q for j in self._jids])
+        self._perm: np.ndarray | None = None if (idx == np.arange(n)).all() else idx
+        lim = robot.hard_limits
+        self._lower = np.array([x.lower for x in lim])  # [rad or m], J1..Jn
+        self._upper = np.array([x.upper for x in lim])
+        self._revolute = ~np.array(robot.prismatic)
+
+        self._fid = model.getFrameId(robot.flange_frame)
+        flange = model.frames[self._fid]
+        self._flange_placement = flange.placement.copy()
+        self._cp_fid = model.addFrame(pin.Frame("jara_arm_control_point", flange.parentJoint,
+                                                self._fid, flange.placement, pin.FrameType.OP_FRAME))
+        self._data = model.createData()
+        self._oMf = self._data.oMf
+        self._oMi = self._data.oMi
+
+        self._elbow: tuple[int, int, int] | None = None
+        if n == 7:
+            ej = tuple(elbow_joints if elbow_joints is not None
+                       else getattr(robot, "elbow_joints", DEFAULT_ELBOW_JOINTS))
+            if len(ej) != 3 or not all(0 <= int(i) < n for i in ej) or not ej[0] < ej[1] < ej[2]:
+                raise KinematicsError(f"elbow_joints: three increasing axis indices in 0..{n - 1}, got {ej}")
+            self._elbow = tuple(self._jids[int(i)] for i in ej)  # type: ignore[assignment]
+        self._llt = eigenpy.LLT(6)
+        self._build_table(seed_table)
+
+    # ------------------------------------------------------------------ basics
+
+    @property
+    def axis_num(self) -> int:
+        """Number of arm axes n."""
+        return self._n
+
+    @property
+    def lower(self) -> np.ndarray:
+        """Hard lower joint limits [rad or m], J1..Jn."""
+        return self._lower.copy()
+
+    @property
+    def upper(self) -> np.ndarray:
+        """Hard upper joint limits [rad or m], J1..Jn."""
+        return self._upper.copy()
+
+    @property
+    def has_elbow(self) -> bool:
+        """True for a 7-axis arm, whose arm angle :meth:`ik` can command."""
+        return self._elbow is not None
+
+    @property
+    def pin_model(self) -> pin.Model:
+        """The reduced Pinocchio model (read only; its coordinate order may differ from J1..Jn)."""
+        return self._model
+
+    def _q(self, q: ArrayLike, what: str = "q") -> np.ndarray:
+        """Arm joints J1..Jn -> Pinocchio coordinates."""
+        a = np.asarray(q, dtype=float)
+        if a.shape != (self._n,):
+            raise KinematicsError(f"{what}: expected {self._n} joint values, got shape {a.shape}")
+        if self._perm is None:
+            return a
+        out = np.empty(self._n)
+        out[self._perm] = a
+        return out
+
+    def _user_q(self, q: np.ndarray) -> np.ndarray:
+        """Pinocchio coordinates -> arm joints J1..Jn (a new array)."""
+        return q.copy() if self._perm is None else q[self._perm]
+
+    def _frame(self, tool: ArrayLike | None) -> int:
+        """Frame id of the flange (tool None) or of the control point ``flange · tool``."""
+        if tool is None:
+            return self._fid
+        self._model.frames[self._cp_fid].placement = self._flange_placement * _se3(tool, "tool")
+        return self._cp_fid
+
+    def within_limits(self, q: ArrayLike, tol: float = 0.0) -> bool:
+        """True when every axis lies in its hard limits widened by ``tol`` [rad or m]."""
+        a = np.asarray(q, dtype=float)
+        return bool(np.all(a >= self._lower - tol) and np.all(a <= self._upper + tol))
+
+    # ------------------------------------------------------------------ forward
+
+    def fk(self, q: ArrayLike) -> np.ndarray:
+        """Flange pose in the arm base frame (4x4) at joints ``q`` [rad or m]."""
+        qp = self._q(q)
+        pin.forwardKinematics(self._model, self._data, qp)
+        pin.updateFramePlacement(self._model, self._data, self._fid)
+        return self._oMf[self._fid].homogeneous
+
+    def control_point(self, q: ArrayLike, tool: ArrayLike | None = None) -> np.ndarray:
+        """Control point pose ``T_flange · C`` in the arm base frame (4x4); ``tool`` = C (4x4 or 3x4)."""
+        qp = self._q(q)
+        fid = self._frame(tool)
+        pin.forwardKinematics(self._model, self._data, qp)
+        pin.updateFramePlacement(self._model, self._data, fid)
+        return self._oMf[fid].homogeneous
+
+    def jacobian(self, q: ArrayLike, tool: ArrayLike | None = None) -> np.ndarray:
+        """Jacobian (6 x n) of the control point, frame LOCAL_WORLD_ALIGNED.
+
+        Rows: linear velocity [m/s] of the control point origin, then angular
+        velocity [rad/s], both along the arm base frame axes; columns: J1..Jn
+        ([rad/s] or [m/s]).
+        """
+        qp = self._q(q)
+        fid = self._frame(tool)
+        J = pin.computeFrameJacobian(self._model, self._data, qp, fid, pin.LOCAL_WORLD_ALIGNED)
+        return J if self._perm is None else J[:, self._perm]
+
+    # ------------------------------------------------------------------ arm angle
+
+    def elbow_angle(self, q: ArrayLike) -> float:
+        """Arm angle [rad] in (-pi, pi] of a 7-axis arm (DECISIONS.md "Frames"); 0 for 1-6 axes.
+
+        Shoulder S, elbow E and wrist W are the origins of the joint frames of
+        the ``elbow_joints`` axes (J2, J4, J6 by default; on the Panda these
+        joint origins carry the link offsets, and they are used as they are).
+        With u the unit vector S->W, the reference direction r is the base z
+        axis (the base x axis when S->W is vertical) made orthogonal to u, and
+        v is S->E made orthogonal to u. The angle is the rotation from r to v,
+        right-handed about u: 0 when the elbow lies in the vertical plane
+        through S->W on the +z side ("elbow up"). Undefined -- 0 is returned --
+        when E lies on the line S-W.
+        """
+        if self._elbow is None:
+            return 0.0
+        pin.forwardKinematics(self._model, self._data, self._q(q))
+        return self._arm_angle(False)[0]
+
+    def _arm_angle(self, grad: bool) -> tuple[float, np.ndarray | None]:
+        """Arm angle from ``data.oMi`` (FK done); with ``grad`` also d(angle)/dq (Pinocchio order).
+
+        For the gradient, ``computeJointJacobians`` must have run. With t_v = u x v^
+        and t_r = u x r^ (unit tangents), L = |SW|, rho = |v~|, sigma = |r~|, a = SE:
+        d(psi) = t_v.dE/rho + [-(a.u) t_v/(L rho) + (z.u) t_r/(L sigma)].dW - (sum of both).dS.
+        """
+        js, je, jw = self._elbow  # type: ignore[misc]
+        oMi = self._oMi
+        s = oMi[js].translation
+        sw = oMi[jw].translation - s
+        a = oMi[je].translation - s
+        length = math.sqrt(sw.dot(sw))
+        u = sw / length
+        ref = np.array((0.0, 0.0, 1.0))
+        zu = u[2]
+        r = ref - zu * u
+        sigma = math.sqrt(r.dot(r))
+        if sigma < _VERTICAL:
+            ref = np.array((1.0, 0.0, 0.0))
+            zu = u[0]
+            r = ref - zu * u
+            sigma = math.sqrt(r.dot(r))
+        au = a.dot(u)
+        v = a - au * u
+        rho = math.sqrt(v.dot(v))
+        if rho < 1e-12:
+            return 0.0, (np.zeros(self._n) if grad else None)
+        r = r / sigma
+        v = v / rho
+        t_r = np.cross(u, r)
+        psi = math.atan2(v.dot(t_r), v.dot(r))
+        if not grad:
+            return psi, None
+        t_v = np.cross(u, v)
+        g_e = t_v / rho
+        g_w = (-au / (length * rho)) * t_v + (zu / (length * sigma)) * t_r
+        m, d, lwa = self._model, self._data, pin.LOCAL_WORLD_ALIGNED
+        Js = pin.getJointJacobian(m, d, js, lwa)[:3]
+        Je = pin.getJointJacobian(m, d, je, lwa)[:3]
+        Jw = pin.getJointJacobian(m, d, jw, lwa)[:3]
+        return psi, g_e.dot(Je - Js) + g_w.dot(Jw - Js)
+
+    # ------------------------------------------------------------------ seed table
+
+    def _build_table(self, size: int) -> None:
+        """Random configurations with their flange poses (and arm angles) for IK restarts."""
+        self._table_q = np.empty((0, self._n))
+        if size <= 0:
+            return
+        rng = np.random.default_rng(self._seed)
+        lo, hi = self._pin_limits(None, None)
+        qs = lo + (hi - lo) * rng.random((size, self._n))
+        feats = np.empty((size, 14))  # p (3), R row-major (9), cos(psi), sin(psi)
+        m, d, fid = self._model, self._data, self._fid
+        for i, q in enumerate(qs):
+            pin.forwardKinematics(m, d, q)
+            pin.updateFramePlacement(m, d, fid)
+            h = self._oMf[fid].homogeneous
+            feats[i, :3] = h[:3, 3]
+            feats[i, 3:12] = h[:3, :3].reshape(-1)
+            psi = self._arm_angle(False)[0] if self._elbow is not None else 0.0
+            feats[i, 12] = math.cos(psi)
+            feats[i, 13] = math.sin(psi)
+        self._table_q = qs
+        self._table_f = feats
+
+    def _table_distance(self, flange_target: pin.SE3, mask: Mask, elbow: float | None) -> np.ndarray:
+        """Squared-ish distance of every table entry to the target (flange pose, arm angle)."""
+        g = np.zeros(14)
+        mp = np.array(mask[:3])
+        p = flange_target.translation
+        g[:3] = -2.0 * p * mp
+        c = (self._table_f[:, :3][:, mp] ** 2).sum(axis=1)
+        if all(mask[3:]):  # orientation used only when fully constrained
+            g[3:12] = -_TABLE_ROT_WEIGHT * flange_target.rotation.reshape(-1)
+        if elbow is not None:
+            g[12] = -_TABLE_ELBOW_WEIGHT * math.cos(elbow)
+            g[13] = -_TABLE_ELBOW_WEIGHT * math.sin(elbow)
+        return c + self._table_f @ g
+
+    # ------------------------------------------------------------------ inverse
+
+    def _pin_limits(self, lower: ArrayLike | None, upper: ArrayLike | None) -> tuple[np.ndarray, np.ndarray]:
+        lo = self._lower if lower is None else np.asarray(lower, dtype=float)
+        hi = self._upper if upper is None else np.asarray(upper, dtype=float)
+        if lo.shape != (self._n,) or hi.shape != (self._n,):
+            raise KinematicsError(f"limits: expected {self._n} values each")
+        if np.any(lo > hi) or np.any(lo < self._lower - 1e-12) or np.any(hi > self._upper + 1e-12):
+            raise KinematicsError("limits: need lower <= upper within the hard limits")
+        if self._perm is None:
+            return lo, hi
+        plo, phi = np.empty(self._n), np.empty(self._n)
+        plo[self._perm] = lo
+        phi[self._perm] = hi
+        return plo, phi
+
+    def ik(
+        self,
+        target: ArrayLike,
+        q_seed: ArrayLike,
+        *,
+        tool: ArrayLike | None = None,
+        elbow: float | None = None,
+        mask: Sequence[bool] = FULL_MASK,
+        tol_pos: float = 1e-5,
+        tol_rot: float = 1e-5,
+        tol_elbow: float = 1e-4,
+        max_iter: int = 1000,
+        lower: ArrayLike | None = None,
+        upper: ArrayLike | None = None,
+    ) -> IkResult:
+        """Joints that put the control point at ``target``.
+
+        ``target``: control point pose in the arm base frame (4x4 or 3x4);
+        ``q_seed`` [rad or m]: start configuration; ``tool``: control point
+        offset C (identity if None); ``elbow`` [rad]: arm angle to reach as
+        well (7-axis arms; ignored otherwise); ``tol_pos`` [m], ``tol_rot``,
+        ``tol_elbow`` [rad]: convergence tolerances; ``lower``/``upper``
+        [rad or m]: joint limits to respect (default: the hard limits; narrower
+        soft limits may be given); ``max_iter``: budget of Newton iterations.
+
+        ``mask`` selects the constrained components (x, y, z, rx, ry, rz), all
+        along the arm base frame axes. Position components are those of
+        ``p_target - p``. Rotation components are those of the rotation vector
+        ``w = log(R_target · R^T)`` expressed in the arm base frame: when some
+        are free, the result satisfies ``R_target = exp(w) · R`` with ``w``
+        zero on the constrained axes -- e.g. with rx free the reached
+        orientation is the target turned about the base x axis. ``rot_err`` is
+        the norm of the constrained components of ``w``.
+
+        Method: Levenberg-Marquardt (damped least squares, damping = 0.1 x
+        squared error + 1e-7) on the pose error, with Pinocchio's frame
+        Jacobian. Joint limits are a box: a step that leaves the box is redone
+        with the offending joints stopped at their limit and the others
+        re-solved, then clamped. A commanded arm angle is one more task row,
+        with its analytic gradient. The first attempt starts at the seed, so
+        that a solution near the seed is preferred; an attempt that stalls
+        (no 2 % error decrease in 3 iterations) or lasts 16 iterations is
+        restarted from the nearest entries of the seed table, then from
+        uniform random configurations (seeded: the result is reproducible).
+        Revolute joints with more than 2 pi of travel are finally moved by
+        whole turns towards the seed.
+        """
+        mask = _mask(mask)
+        lo, hi = self._pin_limits(lower, upper)
+        q0 = np.minimum(np.maximum(self._q(q_seed, "q_seed"), lo), hi)
+        mt = _se3(target, "target")
+        fid = self._frame(tool)
+        flange_target = mt if tool is None else mt * _se3(tool, "tool").inverse()
+        use_elbow = elbow is not None and self._elbow is not None
+        if use_elbow:
+            elbow = math.remainder(float(elbow), _TWO_PI)  # type: ignore[arg-type]
+        if all(mask) and not use_elbow:
+            q, ok, it, pe, re, ee = self._solve_pose(mt, q0, fid, lo, hi, tol_pos, tol_rot, max_iter,
+                                                     flange_target)
+        else:
+            q, ok, it, pe, re, ee = self._solve_general(
+                mt, q0, fid, lo, hi, tol_pos, tol_rot, tol_elbow, max_iter, flange_target, mask,
+                elbow if use_elbow else None)
+        if ok and self._wraps(lo, hi):
+            q = self._nearest_turn(q, q0, lo, hi)
+        return IkResult(self._user_q(q), ok, it, pe, re, ee)
+
+    def _wraps(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        return bool(np.any((hi - lo > _TWO_PI) & self._revolute_pin))
+
+    @property
+    def _revolute_pin(self) -> np.ndarray:
+        if self._perm is None:
+            return self._revolute
+        out = np.empty(self._n, dtype=bool)
+        out[self._perm] = self._revolute
+        return out
+
+    def _nearest_turn(self, q: np.ndarray, seed: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Move revolute joints by whole turns towards the seed, within limits."""
+        out = q.copy()
+        for i in np.flatnonzero(self._revolute_pin & (hi - lo > _TWO_PI)):
+            c = q[i] + _TWO_PI * round((seed[i] - q[i]) / _TWO_PI)
+            if lo[i] <= c <= hi[i]:
+                out[i] = c
+        return out
+
+    def _restart(self, k: int, state: dict, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Start configuration of restart ``k`` (0-based): the k-th nearest table entry, then random."""
+        if k < _TABLE_RESTARTS and len(self._table_q):
+            dist = state.get("dist")
+            if dist is None:
+                dist = state["dist"] = self._table_distance(state["flange_target"], state["mask"],
+                                                            state["elbow"])
+            i = int(dist.argmin())
+            dist[i] = np.inf
+            return np.minimum(np.maximum(self._table_q[i], lo), hi)
+        rng = state.get("rng")
+        if rng is None:
+            rng = state["rng"] = np.random.default_rng(self._seed)
+        return lo + (hi - lo) * rng.random(self._n)
+
+    def _solve_pose(self, mt: pin.SE3, q: np.ndarray, fid: int, lo: np.ndarray, hi: np.ndarray,
+                    tol_pos: float, tol_rot: float, max_iter: int, flange_target: pin.SE3
+                    ) -> tuple[np.ndarray, bool, int, float, float, float]:
+        """Full 6-D pose IK, the fast path.
+
+        Works in the LOCAL frame of the control point: error
+        ``[R^T (p_t - p), log3(R^T R_t)]`` and the LOCAL Jacobian. Damped least
+        squares is invariant to that rotation of the task space, so this is
+        the same step as with base-frame errors.
+        """
+        m, d, oMf = self._model, self._data, self._oMf
+        cfj, log3, local = pin.computeFrameJacobian, pin.log3, pin.LOCAL
+        mn, mx, dot = np.minimum, np.maximum, np.dot
+        llt = self._llt
+        A = np.empty((6, 6))
+        Ad = A.reshape(-1)[::7]  # view of the diagonal
+        e = np.empty(6)
+        tp2, tr2 = tol_pos * tol_pos, tol_rot * tol_rot
+        state = {"flange_target": flange_target, "mask": FULL_MASK, "elbow": None}
+        best, best_q, best_pe, best_re = math.inf, q, math.inf, math.inf
+        att_best, since, att, restarts = math.inf, 0, 0, 0
+        for it in range(max_iter):
+            J = cfj(m, d, q, fid, local)
+            dm = oMf[fid].actInv(mt)
+            t = dm.translation
+            w = log3(dm.rotation)
+            pe = t.dot(t)
+            re = w.dot(w)
+            if pe <= tp2 and re <= tr2:
+                return q, True, it, math.sqrt(pe), math.sqrt(re), 0.0
+            err = pe + re
+            if err < best:
+                best, best_q, best_pe, best_re = err, q, pe, re
+            if err < att_best * _STALL_DECREASE:
+                att_best = err
+                since = 0
+            else:
+                since += 1
+            att += 1
+            if since > _STALL_ITERS or att > _ATTEMPT_ITERS:
+                q = self._restart(restarts, state, lo, hi)
+                restarts += 1
+                att_best, since, att = math.inf, 0, 0
+                continue
+            e[:3] = t
+            e[3:] = w
+            lam = _DAMP_GAIN * err + _DAMP_FLOOR
+            JT = J.T
+            dot(J, JT, out=A)
+            Ad += lam
+            llt.compute(A)
+            qn = q + JT.dot(llt.solve(e))
+            qc = mn(mx(qn, lo), hi)
+            dv = qn - qc
+            if dv.dot(dv) > 0.0:
+                # Limit-aware step: stop the offending joints at their limit, re-solve the rest.
+                free = dv == 0.0
+                dqf = qc - q
+                dqf *= ~free
+                Jf = J * free
+                dot(Jf, Jf.T, out=A)
+                Ad += lam
+                llt.compute(A)
+                qn = q + dqf + Jf.T.dot(llt.solve(e - J.dot(dqf)))
+                qc = mn(mx(qn, lo), hi)
+            q = qc
+        return best_q, False, max_iter, math.sqrt(best_pe), math.sqrt(best_re), 0.0
+
+    def _solve_general(self, mt: pin.SE3, q: np.ndarray, fid: int, lo: np.ndarray, hi: np.ndarray,
+                       tol_pos: float, tol_rot: float, tol_elbow: float, max_iter: int,
+                       flange_target: pin.SE3, mask: Mask, elbow: float | None
+                       ) -> tuple[np.ndarray, bool, int, float, float, float]:
+        """IK with a task mask and/or a commanded arm angle (errors in the arm base frame)."""
+        m, d, oMf = self._model, self._data, self._oMf
+        lwa, log3, jlog3 = pin.LOCAL_WORLD_ALIGNED, pin.log3, pin.Jlog3
+        mn, mx, dot = np.minimum, np.maximum, np.dot
+        mp = np.array(mask[:3])
+        mr = np.array(mask[3:])
+        any_rot = bool(mr.any())
+        partial_rot = any_rot and not mr.all()
+        rows = np.flatnonzero(np.array(mask))
+        nrow = len(rows) + (1 if elbow is not None else 0)
+        llt = eigenpy.LLT(nrow)
+        A = np.empty((nrow, nrow))
+        Ad = A.reshape(-1)[:: nrow + 1]
+        Jt = np.empty((6, self._n))
+        e6 = np.empty(6)
+        pt, rt = mt.translation, mt.rotation
+        tp2, tr2 = tol_pos * tol_pos, tol_rot * tol_rot
+        state = {"flange_target": flange_target, "mask": mask, "elbow": elbow}
+        best, best_q, best_pe, best_re, best_ee = math.inf, q, math.inf, math.inf, math.inf
+        att_best, since, att, restarts = math.inf, 0, 0, 0
+        for it in range(max_iter):
+            if elbow is None:
+                J = pin.computeFrameJacobian(m, d, q, fid, lwa)
+            else:
+                pin.computeJointJacobians(m, d, q)
+                J = pin.getFrameJacobian(m, d, fid, lwa)
+            M = oMf[fid]
+            ep = pt - M.translation
+            E = rt @ M.rotation.T
+            w = log3(E)
+            pe = float((ep * mp).dot(ep))
+            re = float((w * mr).dot(w))
+            ee = 0.0
+            if elbow is not None:
+                psi, g = self._arm_angle(True)
+                de = math.remainder(elbow - psi, _TWO_PI)
+                ee = de * de
+            if pe <= tp2 and re <= tr2 and ee <= tol_elbow * tol_elbow:
+                return q, True, it, math.sqrt(pe), math.sqrt(re), math.sqrt(ee)
+            err = pe + re + ee
+            if err < best:
+                best, best_q, best_pe, best_re, best_ee = err, q, pe, re, ee
+            if err < att_best * _STALL_DECREASE:
+                att_best = err
+                since = 0
+            else:
+                since += 1
+            att += 1
+            if since > _STALL_ITERS or att > _ATTEMPT_ITERS:
+                q = self._restart(restarts, state, lo, hi)
+                restarts += 1
+                att_best, since, att = math.inf, 0, 0
+                continue
+            Jt[:3] = J[:3]
+            Jt[3:] = jlog3(E) @ J[3:] if partial_rot else J[3:]
+            e6[:3] = ep
+            e6[3:] = w
+            if elbow is None:
+                Jm = Jt[rows]
+                e = e6[rows]
+            else:
+                Jm = np.vstack((Jt[rows], g))
+                e = np.append(e6[rows], de)
+            lam = _DAMP_GAIN * err + _DAMP_FLOOR
+            JT = Jm.T
+            dot(Jm, JT, out=A)
+            Ad += lam
+            llt.compute(A)
+            qn = q + JT.dot(llt.solve(e))
+            qc = mn(mx(qn, lo), hi)
+            dv = qn - qc
+            if dv.dot(dv) > 0.0:
+                free = dv == 0.0
+                dqf = qc - q
+                dqf *= ~free
+                Jf = Jm * free
+                dot(Jf, Jf.T, out=A)
+                Ad += lam
+                llt.compute(A)
+                qn = q + dqf + Jf.T.dot(llt.solve(e - Jm.dot(dqf)))
+                qc = mn(mx(qn, lo), hi)
+            q = qc
+        return (best_q, False, max_iter, math.sqrt(best_pe), math.sqrt(best_re), math.sqrt(best_ee))

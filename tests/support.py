@@ -1,0 +1,174 @@
+"""Test helpers: free loopback ports, service processes, a typed client over Zenoh.
+
+Every test talks to real processes over real Zenoh sessions on 127.0.0.1 with
+multicast scouting off, on ports of its own, so that tests can run side by side.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from typing import Any
+
+import zenoh
+
+from jara_arm.schema import codec
+from jara_arm.schema.codec import Encoding, Reply
+from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.operations import Interface, operation
+from jara_arm.services.runtime.zenoh_args import zenoh_config
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def endpoint(port: int) -> str:
+    return f"tcp/127.0.0.1:{port}"
+
+
+def client_config(port: int) -> zenoh.Config:
+    return zenoh_config("client", connect=[endpoint(port)])
+
+
+@contextlib.contextmanager
+def client_session(port: int, timeout: float = 20.0) -> Iterator[zenoh.Session]:
+    """A client session to ``port``, retried until the listener is up."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            session = zenoh.open(client_config(port))
+            break
+        except zenoh.ZError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+    with session:
+        yield session
+
+
+class Proc:
+    """A child process whose stderr is collected (for failure messages)."""
+
+    def __init__(self, argv: Sequence[str], env: Mapping[str, str] | None = None) -> None:
+        self.argv = list(argv)
+        self.popen = subprocess.Popen(
+            self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}, start_new_session=True)
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.popen.stdout is not None
+        for line in self.popen.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    @property
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+    def wait_for_line(self, needle: str, timeout: float = 30.0, start: int = 0) -> str:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for line in self.lines[start:]:
+                if needle in line:
+                    return line
+            if self.popen.poll() is not None and not self._reader.is_alive():
+                break
+            time.sleep(0.05)
+        raise AssertionError(f"no line with {needle!r} within {timeout} s; output:\n{self.output}")
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> int:
+        if self.popen.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.popen.pid, sig)
+            try:
+                self.popen.wait(timeout)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(self.popen.pid, signal.SIGKILL)
+                self.popen.wait(5)
+        self._reader.join(2)
+        return self.popen.returncode
+
+
+def service_argv(service: Service, port: int, arm: str = "arm0", robot: str = "iiwa",
+                 *extra: str) -> list[str]:
+    """A service listening on its own loopback port, as a peer, multicast off."""
+    module = service.value.replace("-", "_")
+    return [sys.executable, "-m", f"jara_arm.services.{module}", "--arm", arm, "--robot", robot,
+            "--listen", endpoint(port), *extra]
+
+
+def wait_alive(session: zenoh.Session, arm: str, services: Sequence[Service],
+               timeout: float = 30.0) -> None:
+    keys = ArmKeys(arm)
+    deadline = time.monotonic() + timeout
+    missing = set(services)
+    while time.monotonic() < deadline:
+        for s in list(missing):
+            if list(session.liveliness().get(keys.alive(s), timeout=1.0)):
+                missing.discard(s)
+        if not missing:
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"services not alive within {timeout} s: {sorted(missing)}")
+
+
+class Client:
+    """Calls operations by name through the schema; returns decoded replies."""
+
+    def __init__(self, session: zenoh.Session, arm: str = "arm0") -> None:
+        self.session = session
+        self.keys = ArmKeys(arm)
+
+    def _get(self, key: str, payload: bytes, encoding: zenoh.Encoding | None,
+             timeout: float) -> bytes:
+        replies = list(self.session.get(key, payload=payload, encoding=encoding, timeout=timeout))
+        oks = [r.ok for r in replies if r.ok is not None]
+        assert len(oks) == 1, f"expected exactly one reply on {key}, got {replies}"
+        return oks[0].payload.to_bytes()
+
+    def call(self, interface: Interface, name: str, args: Mapping[str, Any] | None = None,
+             *, servo: bool = False, timeout: float = 10.0) -> Reply:
+        op = operation(interface, name)
+        key = self.keys.servo_common(name) if servo else self.keys.interface(interface, name)
+        body = self._get(key, codec.encode_request(op, args), None, timeout)
+        return codec.decode_reply(op, body)
+
+    def servo(self, name: str, args: Mapping[str, Any] | None = None, **kw: Any) -> Reply:
+        return self.call(Interface.COMMON, name, args, servo=True, **kw)
+
+    def common(self, name: str, args: Mapping[str, Any] | None = None, **kw: Any) -> Reply:
+        return self.call(Interface.COMMON, name, args, **kw)
+
+    def middle(self, name: str, args: Mapping[str, Any] | None = None, **kw: Any) -> Reply:
+        return self.call(Interface.MIDDLE, name, args, **kw)
+
+    def raw(self, key: str, payload: bytes, *, json: bool = False, timeout: float = 10.0) -> Any:
+        """A query with an arbitrary payload; the reply map as decoded data."""
+        enc = zenoh.Encoding.APPLICATION_JSON if json else None
+        body = self._get(key, payload, enc, timeout)
+        return codec.loads(body, Encoding.JSON if json else Encoding.MSGPACK)
+
+
+def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: str = "condition"):
+    """Poll ``predicate`` until it returns a truthy value, which is returned."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(interval)

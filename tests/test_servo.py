@@ -1,0 +1,340 @@
+"""The servo service as a real process: SyncFIFO, tracking, stops, alarms, bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+
+from jara_arm.robots import robot
+from jara_arm.schema import codec, messages
+from jara_arm.schema import wire_types as w
+from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
+from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.operations import COMMON, OP
+from jara_arm.schema.types import Time, TimedJointPos
+from jara_arm.services.servo.loop import OVERSPEED_MARGIN
+
+from .support import Client, Proc, client_session, free_port, service_argv, wait_alive, wait_until
+
+pytestmark = pytest.mark.timeout(120)
+DT = 1e-3
+IIWA = robot("iiwa")
+VMAX = np.array(IIWA.rated_speed)
+AMAX = np.array(IIWA.max_accel)
+
+
+class Rig:
+    """A servo process, a client session, the command publisher and feedback subscribers."""
+
+    def __init__(self, proc: Proc, session: zenoh.Session, robot_name: str) -> None:
+        self.proc, self.session = proc, session
+        self.model = robot(robot_name)
+        self.keys = ArmKeys("arm0")
+        self.client = Client(session)
+        self.pub = session.declare_publisher(self.keys.pos_cmd)
+        self.fb = session.declare_subscriber(self.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
+        self.status = session.declare_subscriber(self.keys.servo_status, zenoh.handlers.FifoChannel(1 << 14))
+
+    def call(self, name: str, args=None):
+        return self.client.servo(name, args)
+
+    def state(self) -> int:
+        return self.call(OP.getState)["state"]
+
+    def pos(self) -> np.ndarray:
+        return np.array(self.call(OP.getFeedbackPosJoint)["pos"])
+
+    def send(self, q) -> None:
+        self.pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time.now(), tuple(map(float, q)))))
+
+    def stream(self, points: np.ndarray, lead: int = 100) -> None:
+        """Publish ``points`` keeping ``lead`` commands ahead of the servo, then one per cycle."""
+        t0 = time.monotonic()
+        for k, q in enumerate(points):
+            self.send(q)
+            if k >= lead:
+                delay = t0 + (k - lead) * DT - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+
+    def drain_feedback(self) -> list[np.ndarray]:
+        out = []
+        while (s := self.fb.try_recv()) is not None:
+            out.append(np.array(codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()).pos))
+        return out
+
+    def drain_status(self) -> list[messages.ServoStatus]:
+        out = []
+        while (s := self.status.try_recv()) is not None:
+            out.append(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
+        return out
+
+    def wait_rest(self, timeout: float = 10.0) -> None:
+        wait_until(lambda: not self.state() & StateBit.MOVING, timeout, what="the arm at rest")
+
+    def reset(self) -> None:
+        """Servo off, at rest, alarms cleared, default soft limits, servo on, queues drained."""
+        self.call(OP.servoOFF)
+        self.wait_rest()
+        assert self.call(OP.clearAlarms).id == ReturnCode.OK
+        assert self.call(OP.setSoftLimitJoint, {"softLimit": self.model.hard_limits}).id == ReturnCode.OK
+        assert self.call(OP.servoON).id == ReturnCode.OK
+        time.sleep(0.05)
+        self.drain_feedback()
+        self.drain_status()
+
+
+def start_rig(robot_name: str):
+    port = free_port()
+    proc = Proc(service_argv(Service.SERVO, port, robot=robot_name))
+    try:
+        with client_session(port) as session:
+            wait_alive(session, "arm0", [Service.SERVO])
+            yield Rig(proc, session, robot_name)
+    finally:
+        assert proc.stop() == 0, proc.output
+        assert "Traceback" not in proc.output, proc.output
+
+
+@pytest.fixture(scope="module")
+def iiwa_rig():
+    yield from start_rig("iiwa")
+
+
+@pytest.fixture
+def rig(iiwa_rig: Rig) -> Rig:
+    iiwa_rig.reset()
+    return iiwa_rig
+
+
+def min_jerk(q0: np.ndarray, q1: np.ndarray, duration: float) -> np.ndarray:
+    n = int(round(duration / DT)) + 1
+    u = np.linspace(0.0, 1.0, n)[:, None]
+    s = 10 * u**3 - 15 * u**4 + 6 * u**5
+    return q0 + s * (q1 - q0)
+
+
+def test_manip_info_and_limits(rig: Rig):
+    info = rig.call(OP.getManipInfo)["mInfo"]
+    assert (info.manufactur, info.axisNum, info.cmdCycle, info.isGripper) == ("KUKA", 7, 1, False)
+    assert rig.call(OP.getSoftLimitJoint)["softLimit"] == IIWA.hard_limits
+    assert rig.state() == StateBit.SERVO_ON
+    assert rig.call(OP.getActiveAlarm)["alarms"] == ()
+    assert len(rig.pos()) == 7
+
+
+def test_streamed_trajectory_is_followed(rig: Rig):
+    q0 = rig.pos()
+    q1 = q0 + np.array([0.4, -0.2, 0.3, 0.3, -0.2, 0.2, 0.5])
+    path = min_jerk(q0, q1, 1.2)
+    rig.stream(path)
+    assert rig.state() & StateBit.MOVING
+    rig.wait_rest()
+    fb = np.array(rig.drain_feedback())
+    assert np.abs(fb[-1] - q1).max() < 2e-4, fb[-1] - q1
+    # Every feedback sample lies near the commanded path (lag of a few cycles at most).
+    dist = np.min(np.linalg.norm(fb[:, None, :] - path[None, ::5, :], axis=2), axis=1)
+    assert dist.max() < 5e-3, dist.max()
+
+
+def test_fifo_consumes_every_command_in_order_one_per_cycle(rig: Rig):
+    q0 = rig.pos()
+    path = min_jerk(q0, q0 + np.array([0.2, 0, 0, 0, 0, 0, 0]), 0.4)  # strictly rising J1
+    n = len(path)
+    before = rig.drain_status()
+    t0 = time.monotonic()
+    for q in path:  # all at once: the FIFO must hold them
+        rig.send(q)
+    rig.wait_rest()
+    elapsed = time.monotonic() - t0
+    status = rig.drain_status()
+    consumed = status[-1].consumed - (before[-1].consumed if before else status[0].consumed)
+    assert consumed >= n - 10  # counted from the first status after the burst started
+    targets = np.array([s.target[0] for s in status])
+    assert np.all(np.diff(targets) >= -1e-12), "targets went backwards: commands out of order"
+    assert abs(targets[-1] - path[-1, 0]) < 1e-12
+    assert elapsed >= n * DT * 0.9  # one per cycle, not all at once
+    assert abs(rig.pos()[0] - path[-1, 0]) < 2e-4
+
+
+def test_underrun_stops_smoothly(rig: Rig):
+    q0 = rig.pos()
+    v = 0.6 * VMAX[0]  # [rad/s] cruise of J1
+    t_acc = 0.3
+    t = np.arange(0, 0.8, DT)
+    x = np.where(t < t_acc, 0.5 * v / t_acc * t**2, 0.5 * v * t_acc + v * (t - t_acc))
+    path = np.repeat(q0[None, :], len(t), axis=0)
+    path[:, 0] += x
+    rig.stream(path)  # ends at full speed: the FIFO runs dry while moving
+    rig.wait_rest()
+    fb = np.array(rig.drain_feedback())[:, 0]
+    vel = np.diff(fb) / DT
+    acc = np.diff(vel) / DT
+    assert np.abs(vel).max() <= v * 1.05
+    assert np.abs(acc).max() < AMAX[0] * 1.5, np.abs(acc).max()  # decelerates within limits
+    overshoot = fb[-1] - path[-1, 0]
+    assert 0 < overshoot < v**2 / (2 * AMAX[0]) * 2.0, overshoot  # stopped along the way, no jump back
+    assert rig.drain_status()[-1].underruns >= 1
+    assert rig.state() == StateBit.SERVO_ON  # at rest, still on, no alarm
+
+
+def test_emergency_stop(rig: Rig):
+    q0 = rig.pos()
+    path = min_jerk(q0, q0 + np.array([0.8, 0, 0, 0, 0, 0, 0]), 1.5)
+    for q in path[:700]:
+        rig.send(q)
+    time.sleep(0.4)
+    t0 = time.monotonic()
+    rig.session.put(rig.keys.estop, b"")
+    wait_until(lambda: not rig.state() & StateBit.SERVO_ON, 1.0, 0.001, "servo off after e-stop")
+    assert time.monotonic() - t0 < 0.1
+    alarms = rig.call(OP.getActiveAlarm)["alarms"]
+    assert [(a.code, a.type) for a in alarms] == [(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT)]
+    assert rig.state() & StateBit.ALARM
+    rig.wait_rest()
+    fb = np.array(rig.drain_feedback())[:, 0]
+    acc = np.diff(fb, 2) / DT**2
+    assert np.abs(acc).max() < AMAX[0] * 1.5  # a controlled stop: no jump
+    assert fb[-1] < path[-1, 0] - 0.1  # stopped short of the target
+    held = rig.pos()
+    for q in path[700:]:
+        rig.send(q)  # ignored: servo off
+    time.sleep(0.3)
+    assert np.abs(rig.pos() - held).max() < 1e-4
+    refused = rig.call(OP.servoON)
+    assert refused.id == ReturnCode.STATUS_ERR and "clear" in refused.comment
+    assert rig.call(OP.clearAlarms).id == ReturnCode.OK
+    assert rig.call(OP.servoON).id == ReturnCode.OK
+    assert rig.state() == StateBit.SERVO_ON
+
+
+def test_servo_off_holds_and_ignores_commands(rig: Rig):
+    assert rig.call(OP.servoOFF).id == ReturnCode.OK
+    assert rig.state() == 0
+    held = rig.pos()
+    rig.stream(min_jerk(held, held + 0.3, 0.3))
+    time.sleep(0.3)
+    assert np.abs(rig.pos() - held).max() < 1e-4
+    assert rig.state() == 0
+
+
+def test_joint_soft_limit_is_the_last_line_of_defence(rig: Rig):
+    q0 = rig.pos()
+    limits = list(IIWA.hard_limits)
+    limits[0] = type(limits[0])(upper=q0[0] + 0.1, lower=q0[0] - 0.1)
+    assert rig.call(OP.setSoftLimitJoint, {"softLimit": limits}).id == ReturnCode.OK
+    assert rig.call(OP.getSoftLimitJoint)["softLimit"][0] == limits[0]
+    path = min_jerk(q0, q0 + np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)
+    rig.stream(path)
+    rig.wait_rest()
+    alarms = rig.call(OP.getActiveAlarm)["alarms"]
+    assert [(a.code, a.type) for a in alarms] == [(AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING)]
+    assert "J1" in alarms[0].description
+    assert rig.state() == StateBit.SERVO_ON | StateBit.ALARM  # a WARNING keeps the servo on
+    fb = np.array(rig.drain_feedback())[:, 0]
+    assert fb.max() <= limits[0].upper + 5e-3  # target clamped at the limit: physical overshoot only
+    assert abs(fb[-1] - limits[0].upper) < 1e-3  # and it settles on the limit
+    assert rig.call(OP.clearAlarms).id == ReturnCode.OK  # the arm is inside: the cause has gone
+    assert rig.state() == StateBit.SERVO_ON
+
+
+def test_jump_is_refused_as_overspeed(rig: Rig):
+    q0 = rig.pos()
+    jump = q0.copy()
+    jump[2] += VMAX[2] * DT * OVERSPEED_MARGIN * 3
+    rig.send(jump)
+    wait_until(lambda: rig.state() & StateBit.ALARM, 2.0, what="overspeed alarm")
+    alarms = rig.call(OP.getActiveAlarm)["alarms"]
+    assert [(a.code, a.type) for a in alarms] == [(AlarmCode.OVERSPEED, AlarmType.FAULT)]
+    assert "J3" in alarms[0].description
+    assert not rig.state() & StateBit.SERVO_ON
+    assert np.abs(rig.pos() - q0).max() < 1e-4  # not applied
+
+
+def test_set_soft_limit_refused_while_moving_and_checked(rig: Rig):
+    q0 = rig.pos()
+    hard = IIWA.hard_limits
+    for q in min_jerk(q0, q0 + np.array([0.5, 0, 0, 0, 0, 0, 0]), 1.0):
+        rig.send(q)
+    time.sleep(0.2)
+    busy = rig.call(OP.setSoftLimitJoint, {"softLimit": hard})
+    assert busy.id == ReturnCode.STATUS_ERR and "moving" in busy.comment
+    rig.wait_rest()
+    LV = type(hard[0])
+    cases = [
+        (hard[:6], "softLimit", "7 entries"),
+        ((LV(0.1, 0.2),) + hard[1:], "softLimit[0]", "below"),
+        (hard[:3] + (LV(hard[3].upper + 0.1, 0.0),) + hard[4:], "softLimit[3]", "hard limits"),
+    ]
+    for limits, field, words in cases:
+        r = rig.call(OP.setSoftLimitJoint, {"softLimit": limits})
+        assert r.id == ReturnCode.VALUE_ERR and r.comment.startswith(field) and words in r.comment, r
+    assert rig.call(OP.getSoftLimitJoint)["softLimit"] == hard  # nothing changed
+
+
+@pytest.mark.parametrize("name", list(COMMON))
+def test_bad_payloads_get_value_err_and_change_nothing(rig: Rig, name: str):
+    key = rig.keys.servo_common(name)
+    state = rig.state()
+    for payload in (b"\xc1\xc1", msgpack.packb([1, 2]), msgpack.packb({"bogus": 1})):
+        reply = rig.client.raw(key, payload)
+        assert reply["id"] == ReturnCode.VALUE_ERR, (name, payload, reply)
+        assert set(reply) == {"id", "comment"} and reply["comment"]
+    bad_json = rig.client.raw(key, b'{"bogus": NaN', json=True)
+    assert bad_json["id"] == ReturnCode.VALUE_ERR
+    assert rig.state() == state and rig.proc.popen.poll() is None
+
+
+def test_unknown_operation_and_json(rig: Rig):
+    nope = rig.client.raw(rig.keys.servo_common() .replace("*", "getActivAlarm"), b"")
+    assert nope["id"] == ReturnCode.NOT_IMPLEMENTED
+    reply = rig.client.raw(rig.keys.servo_common(OP.getState), b"{}", json=True)
+    assert reply == {"id": 0, "comment": "OK", "state": int(StateBit.SERVO_ON)}
+    info = rig.client.raw(rig.keys.servo_common(OP.getManipInfo), b"", json=True)
+    assert info["mInfo"]["manufactur"] == "KUKA"
+
+
+def test_malformed_position_commands_are_dropped(rig: Rig):
+    held = rig.pos()
+    rig.pub.put(b"\xc1")
+    rig.pub.put(msgpack.packb({"tm": {"sec": 0, "nsec": 0}, "pos": [0.0] * 3}))  # wrong length
+    rig.pub.put(msgpack.packb({"pos": list(held)}))  # no tm
+    time.sleep(0.2)
+    assert rig.state() == StateBit.SERVO_ON
+    assert np.abs(rig.pos() - held).max() < 1e-4
+
+
+def test_plain_client_drives_the_servo(iiwa_rig: Rig):
+    iiwa_rig.reset()
+    port = int(iiwa_rig.proc.argv[iiwa_rig.proc.argv.index("--listen") + 1].rsplit(":", 1)[1])
+    script = Path(__file__).with_name("plain_client.py")
+    out = subprocess.run([sys.executable, str(script), str(port)], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "PLAIN CLIENT OK" in out.stdout
+
+
+@pytest.fixture(scope="module")
+def panda_rig():
+    yield from start_rig("panda")
+
+
+def test_panda_gripper_is_one_axis(panda_rig: Rig):
+    panda_rig.reset()
+    info = panda_rig.call(OP.getManipInfo)["mInfo"]
+    assert info.axisNum == 7 and info.isGripper
+    q0 = panda_rig.pos()
+    assert len(q0) == 8 and abs(q0[7] - 0.04) < 1e-3  # starts open
+    q1 = q0.copy()
+    q1[7] = 0.01
+    panda_rig.stream(min_jerk(q0, q1, 0.6))
+    panda_rig.wait_rest()
+    assert abs(panda_rig.pos()[7] - 0.01) < 1e-3
+    assert len(panda_rig.call(OP.getSoftLimitJoint)["softLimit"]) == 7  # gripper excluded
