@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import json
 from collections.abc import Mapping
 from typing import Any
@@ -29,8 +30,12 @@ class Encoding(enum.Enum):
     @classmethod
     def of(cls, zenoh_encoding: object | None) -> "Encoding":
         """The codec for a Zenoh encoding: JSON for ``application/json``, else MessagePack."""
-        text = str(zenoh_encoding or "")
-        return cls.JSON if text.split(";", 1)[0] in ("application/json", "text/json") else cls.MSGPACK
+        return _encoding_of(str(zenoh_encoding or ""))
+
+
+@functools.lru_cache(maxsize=64)
+def _encoding_of(text: str) -> Encoding:
+    return Encoding.JSON if text.split(";", 1)[0] in ("application/json", "text/json") else Encoding.MSGPACK
 
 
 def loads(payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
@@ -54,6 +59,8 @@ def dumps(value: Any, encoding: Encoding = Encoding.MSGPACK) -> bytes:
 
 def decode_request(op: Operation, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> dict[str, Any]:
     """The ``in`` parameters of ``op`` by name, strictly checked."""
+    if not payload and not op.inputs:
+        return {}
     value = loads(payload, encoding)
     if not isinstance(value, dict):
         raise WireError("payload", f"expected a map of the in parameters of {op.name}, "

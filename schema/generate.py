@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from . import keys, messages, operations, wire_types
+from . import keys, messages, operations, planner, wire_types
 from .codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from .wire_types import Member, StructType
 
@@ -48,7 +48,7 @@ def _operation(op: operations.Operation) -> dict[str, Any]:
 def build() -> dict[str, Any]:
     """The whole contract as one JSON document (JSON Schema 2020-12 plus ``x-`` tables)."""
     defs = {t.name: t.json_schema() for t in wire_types.NAMED_TYPES}
-    defs.update({m.name: m.json_schema() for m in messages.MESSAGES})
+    defs.update({m.name: m.json_schema() for m in messages.MESSAGES + planner.MESSAGES})
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "$id": "jara_arm.schema.json",

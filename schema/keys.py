@@ -99,6 +99,21 @@ class ArmKeys:
         return f"{self.root}/Servo/status"
 
     @property
+    def planner_plan(self) -> str:
+        """Queryable of the planner: ``MotionRequest`` -> ``PlanReply`` (schema.planner)."""
+        return f"{self.root}/Planner/plan"
+
+    @property
+    def planner_control(self) -> str:
+        """Queryable of the planner: ``ControlRequest`` -> ``{id, comment}``."""
+        return f"{self.root}/Planner/control"
+
+    @property
+    def planner_progress(self) -> str:
+        """``PlannerProgress`` from the planner, on every change and at 10 Hz."""
+        return f"{self.root}/Planner/progress"
+
+    @property
     def servo_health(self) -> str:
         """``LoopHealth`` from the servo about once a second: lateness, overruns, underruns."""
         return f"{self.root}/Servo/health"
@@ -148,4 +163,8 @@ KEY_TABLE: tuple[tuple[str, str, str, str], ...] = (
     ("JARA_ARM/<arm>/alive/<service>", "liveliness token", "every service", "-"),
     ("JARA_ARM/<arm>/Servo/status", "publisher (internal)", "servo", "ServoStatus"),
     ("JARA_ARM/<arm>/Servo/health", "publisher (internal)", "servo", "LoopHealth, ~1 Hz"),
+    ("JARA_ARM/<arm>/Planner/plan", "queryable (internal)", "planner", "MotionRequest -> PlanReply"),
+    ("JARA_ARM/<arm>/Planner/control", "queryable (internal)", "planner",
+     "ControlRequest -> {id, comment}"),
+    ("JARA_ARM/<arm>/Planner/progress", "publisher (internal)", "planner", "PlannerProgress"),
 )

@@ -201,6 +201,13 @@ def test_struct_values():
     assert CarPosWithElbow(hg_matrix(), 0.0, 0) == CarPosWithElbow(hg_matrix(), 0.0, 0)
 
 
+def test_fast_feedback_encoder_equals_the_generic_one():
+    pos = [0.1, -2.0, 3.5e-9]
+    t_ns = 1_795_331_203_250_143_514
+    generic = codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time(1_795_331_203, 250_143_514), tuple(pos)))
+    assert messages.timed_joint_pos_payload(t_ns, pos) == generic
+
+
 def test_keys():
     k = keys.ArmKeys("arm-1_B")
     assert k.interface(Interface.MIDDLE, "movePTPJointAbs") == "JARA_ARM/arm-1_B/Middle/movePTPJointAbs"

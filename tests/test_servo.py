@@ -65,9 +65,14 @@ class Rig:
                     time.sleep(delay)
 
     def drain_feedback(self) -> list[np.ndarray]:
+        return [pos for _t, pos in self.drain_timed_feedback()]
+
+    def drain_timed_feedback(self) -> list[tuple[float, np.ndarray]]:
+        """Feedback as (tm [s], pos); samples may be missing (newest value wins)."""
         out = []
         while (s := self.fb.try_recv()) is not None:
-            out.append(np.array(codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()).pos))
+            msg = codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes())
+            out.append((msg.tm.to_seconds(), np.array(msg.pos)))
         return out
 
     def drain_status(self) -> list[messages.ServoStatus]:
@@ -114,6 +119,11 @@ def rig(iiwa_rig: Rig) -> Rig:
     return iiwa_rig
 
 
+def j1_of(samples: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """(tm [s], J1 [rad]) of the feedback, for differences over the real sample spacing."""
+    return np.array([t for t, _ in samples]), np.array([q[0] for _, q in samples])
+
+
 def min_jerk(q0: np.ndarray, q1: np.ndarray, duration: float) -> np.ndarray:
     n = int(round(duration / DT)) + 1
     u = np.linspace(0.0, 1.0, n)[:, None]
@@ -148,15 +158,21 @@ def test_fifo_consumes_every_command_in_order_one_per_cycle(rig: Rig):
     q0 = rig.pos()
     path = min_jerk(q0, q0 + np.array([0.2, 0, 0, 0, 0, 0, 0]), 0.4)  # strictly rising J1
     n = len(path)
-    before = rig.drain_status()
+    time.sleep(0.05)
+    before = rig.drain_status()[-1].consumed
     t0 = time.monotonic()
     for q in path:  # all at once: the FIFO must hold them
         rig.send(q)
     rig.wait_rest()
     elapsed = time.monotonic() - t0
-    status = rig.drain_status()
-    consumed = status[-1].consumed - (before[-1].consumed if before else status[0].consumed)
-    assert consumed >= n - 10  # counted from the first status after the burst started
+    status: list[messages.ServoStatus] = []
+
+    def emptied() -> bool:
+        status.extend(rig.drain_status())
+        return bool(status) and status[-1].fifoDepth == 0 and status[-1].consumed - before >= n
+
+    wait_until(emptied, 5.0, what=f"a status with the FIFO empty and {n} consumed")
+    assert status[-1].consumed - before == n
     targets = np.array([s.target[0] for s in status])
     assert np.all(np.diff(targets) >= -1e-12), "targets went backwards: commands out of order"
     assert abs(targets[-1] - path[-1, 0]) < 1e-12
@@ -174,11 +190,12 @@ def test_underrun_stops_smoothly(rig: Rig):
     path[:, 0] += x
     rig.stream(path)  # ends at full speed: the FIFO runs dry while moving
     rig.wait_rest()
-    fb = np.array(rig.drain_feedback())[:, 0]
-    vel = np.diff(fb) / DT
-    acc = np.diff(vel) / DT
+    tm, fb = j1_of(rig.drain_timed_feedback())
+    vel = np.diff(fb) / np.diff(tm)  # tm: one period apart per cycle; a lost sample is a longer step
+    acc = np.diff(vel) / np.diff(tm)[1:]
     assert np.abs(vel).max() <= v * 1.05
-    assert np.abs(acc).max() < AMAX[0] * 1.5, np.abs(acc).max()  # decelerates within limits
+    braking = acc[int(np.argmax(vel)):]  # from full speed to rest
+    assert np.abs(braking).max() < AMAX[0] * 1.5, np.abs(braking).max()  # within the limits
     overshoot = fb[-1] - path[-1, 0]
     assert 0 < overshoot < v**2 / (2 * AMAX[0]) * 2.0, overshoot  # stopped along the way, no jump back
     assert rig.drain_status()[-1].underruns >= 1
@@ -199,8 +216,9 @@ def test_emergency_stop(rig: Rig):
     assert [(a.code, a.type) for a in alarms] == [(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT)]
     assert rig.state() & StateBit.ALARM
     rig.wait_rest()
-    fb = np.array(rig.drain_feedback())[:, 0]
-    acc = np.diff(fb, 2) / DT**2
+    tm, fb = j1_of(rig.drain_timed_feedback())
+    vel = np.diff(fb) / np.diff(tm)
+    acc = np.diff(vel) / np.diff(tm)[1:]
     assert np.abs(acc).max() < AMAX[0] * 1.5  # a controlled stop: no jump
     assert fb[-1] < path[-1, 0] - 0.1  # stopped short of the target
     held = rig.pos()

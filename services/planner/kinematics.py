@@ -44,6 +44,7 @@ __all__ = [
     "Kinematics",
     "KinematicsError",
     "Mask",
+    "arm_angle",
     "arm_to_robot",
     "hg_to_se3",
     "pose_error",
@@ -62,14 +63,19 @@ DEFAULT_ELBOW_JOINTS: Final[tuple[int, int, int]] = (1, 3, 5)
 """Zero-based arm axes whose joint origins are the shoulder, elbow and wrist of a 7-axis arm."""
 
 _TWO_PI: Final = 2.0 * math.pi
+_TABLE_STREAM: Final = 0x5EED7AB1E  # RNG streams of the seed table and of random restarts,
+_RESTART_STREAM: Final = 0x4E5747  # distinct from a caller's default_rng(seed)
 _VERTICAL: Final = 1e-6  # sin(angle) below which the shoulder-wrist line counts as vertical
 
 # IK tuning (see Kinematics.ik). Errors are summed as [m^2] + [rad^2].
-_DAMP_GAIN: Final = 0.1  # Levenberg-Marquardt damping = gain * squared error + floor
+_DAMP_GAIN: Final = 0.05  # Levenberg-Marquardt damping = gain * squared error + floor
 _DAMP_FLOOR: Final = 1e-7
-_STALL_DECREASE: Final = 0.98  # an iteration "progresses" if it cuts the error below this ratio
-_STALL_ITERS: Final = 3  # iterations without progress before a restart
-_ATTEMPT_ITERS: Final = 16  # iterations per attempt before a restart
+_STALL_DECREASE: Final = 0.3  # progress: the error falls below 0.3 x the attempt's best so far
+_STALL_ITERS: Final = 1  # iterations without progress tolerated; one more and the attempt restarts
+_ATTEMPT_ITERS: Final = 14  # iterations per attempt before a restart
+_NEAR_ERR: Final = 1e-6  # [m^2 + rad^2] below it an attempt is close: slow (near-singular) convergence
+_NEAR_DECREASE: Final = 0.9  # needs only this progress ratio
+_NEAR_ITERS: Final = 60  # and may last this long
 _TABLE_RESTARTS: Final = 12  # restarts drawn from the seed table before uniform random ones
 _TABLE_ROT_WEIGHT: Final = 0.1  # [m^2] per unit of (3 - trace(Ra^T Rb)) in the table distance
 _TABLE_ELBOW_WEIGHT: Final = 0.1  # [m^2] per unit of (1 - cos(elbow difference))
@@ -98,12 +104,31 @@ class IkResult:
 # ---------------------------------------------------------------------------- frames
 
 
-def _se3(pose: ArrayLike, what: str = "pose") -> pin.SE3:
-    """A Pinocchio SE3 from a 4x4 homogeneous matrix or a 3x4 HgMatrix."""
+def _pose_array(pose: ArrayLike | pin.SE3, what: str) -> np.ndarray:
+    """A 4x4 or 3x4 float array of a pose whose rotation block is a proper rotation (1e-6)."""
+    if isinstance(pose, pin.SE3):
+        return pose.homogeneous
     a = np.asarray(pose, dtype=float)
-    if a.shape == (4, 4) or a.shape == (3, 4):
-        return pin.SE3(a[:3, :3], a[:3, 3])
-    raise KinematicsError(f"{what}: expected a 4x4 or 3x4 matrix, got shape {a.shape}")
+    if a.shape != (4, 4) and a.shape != (3, 4):
+        raise KinematicsError(f"{what}: expected a 4x4 or 3x4 matrix, got shape {a.shape}")
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = a[:3, :3].tolist()
+    det = r00 * (r11 * r22 - r12 * r21) - r01 * (r10 * r22 - r12 * r20) + r02 * (r10 * r21 - r11 * r20)
+    if not (abs(det - 1.0) < 1e-6
+            and abs(r00 * r00 + r10 * r10 + r20 * r20 - 1.0) < 1e-6
+            and abs(r01 * r01 + r11 * r11 + r21 * r21 - 1.0) < 1e-6
+            and abs(r00 * r01 + r10 * r11 + r20 * r21) < 1e-6
+            and abs(r00 * r02 + r10 * r12 + r20 * r22) < 1e-6
+            and abs(r01 * r02 + r11 * r12 + r21 * r22) < 1e-6):
+        raise KinematicsError(f"{what}: the 3x3 block is not a rotation matrix (orthonormal, det +1)")
+    return a
+
+
+def _se3(pose: ArrayLike | pin.SE3, what: str = "pose") -> pin.SE3:
+    """A Pinocchio SE3 from a 4x4 homogeneous matrix, a 3x4 HgMatrix or an SE3 (checked)."""
+    if isinstance(pose, pin.SE3):
+        return pose
+    a = _pose_array(pose, what)
+    return pin.SE3(a[:3, :3], a[:3, 3])
 
 
 def hg_to_se3(hg: ArrayLike) -> np.ndarray:
@@ -147,6 +172,26 @@ def pose_error(a: ArrayLike, b: ArrayLike) -> tuple[float, float]:
             float(np.linalg.norm(pin.log3(sa.rotation.T @ sb.rotation))))
 
 
+def arm_angle(shoulder: ArrayLike, elbow: ArrayLike, wrist: ArrayLike) -> float:
+    """Arm angle [rad] in (-pi, pi] of the points S, E, W [m] (arm base frame), DECISIONS.md "Frames".
+
+    The rotation, right-handed about the unit vector u = S->W, of the half-plane
+    bounded by the line S-W that contains E, measured from the half-plane that
+    contains the base z axis (the base x axis when S-W is vertical): 0 when E
+    lies in the vertical plane through S-W on the +z side ("elbow up").
+    Undefined -- 0 is returned -- when E lies on the line S-W.
+    """
+    s, e, w = (np.asarray(x, dtype=float) for x in (shoulder, elbow, wrist))
+    u = (w - s) / np.linalg.norm(w - s)
+    n_ref = np.cross(u, (0.0, 0.0, 1.0))
+    if np.linalg.norm(n_ref) < _VERTICAL:
+        n_ref = np.cross(u, (1.0, 0.0, 0.0))
+    n_arm = np.cross(u, e - s)  # normals of the two half-planes, same orientation about u
+    if np.linalg.norm(n_arm) < 1e-12:
+        return 0.0
+    return math.atan2(float(u.dot(np.cross(n_ref, n_arm))), float(n_ref.dot(n_arm)))
+
+
 def _mask(mask: Sequence[bool]) -> Mask:
     m = tuple(bool(x) for x in mask)
     if len(m) != 6:
@@ -157,6 +202,40 @@ def _mask(mask: Sequence[bool]) -> Mask:
 
 
 # ---------------------------------------------------------------------------- model
+
+
+class _Restarts:
+    """Start configurations of IK restarts: the nearest seed-table entries, then uniform random.
+
+    The table distances and the RNG are only computed when a first restart is needed.
+    """
+
+    __slots__ = ("kin", "target", "tool", "mask", "elbow", "lo", "hi", "count", "dist", "rng")
+
+    def __init__(self, kin: Kinematics, target: np.ndarray, tool: ArrayLike | None, mask: Mask,
+                 elbow: float | None, lo: np.ndarray, hi: np.ndarray) -> None:
+        self.kin, self.target, self.tool, self.mask, self.elbow = kin, target, tool, mask, elbow
+        self.lo, self.hi = lo, hi
+        self.count = 0
+        self.dist: np.ndarray | None = None
+        self.rng: np.random.Generator | None = None
+
+    def next(self) -> np.ndarray:
+        kin = self.kin
+        k = self.count
+        self.count += 1
+        if k < _TABLE_RESTARTS and len(kin._table_q):
+            if self.dist is None:
+                flange = _se3(self.target, "target")
+                if self.tool is not None:
+                    flange = flange * _se3(self.tool, "tool").inverse()
+                self.dist = kin._table_distance(flange, self.mask, self.elbow)
+            i = int(self.dist.argmin())
+            self.dist[i] = np.inf
+            return np.minimum(np.maximum(kin._table_q[i], self.lo), self.hi)
+        if self.rng is None:
+            self.rng = np.random.default_rng((kin._seed, _RESTART_STREAM))
+        return self.lo + (self.hi - self.lo) * self.rng.random(kin._n)
 
 
 class Kinematics:
@@ -227,8 +306,13 @@ class Kinematics:
         self._lower = np.array([x.lower for x in lim])  # [rad or m], J1..Jn
         self._upper = np.array([x.upper for x in lim])
         self._revolute = ~np.array(robot.prismatic)
+        self._plo, self._phi = self._pin_limits(None, None)
+        self._wrap_default = self._wraps(self._plo, self._phi)
 
-        self._fid = model.getFrameId(robot.flange_frame)
+        if model.existFrame(robot.flange_frame, pin.FrameType.BODY):
+            self._fid = model.getFrameId(robot.flange_frame, pin.FrameType.BODY)
+        else:
+            self._fid = model.getFrameId(robot.flange_frame)
         flange = model.frames[self._fid]
         self._flange_placement = flange.placement.copy()
         self._cp_fid = model.addFrame(pin.Frame("jara_arm_control_point", flange.parentJoint,
@@ -244,7 +328,16 @@ class Kinematics:
             if len(ej) != 3 or not all(0 <= int(i) < n for i in ej) or not ej[0] < ej[1] < ej[2]:
                 raise KinematicsError(f"elbow_joints: three increasing axis indices in 0..{n - 1}, got {ej}")
             self._elbow = tuple(self._jids[int(i)] for i in ej)  # type: ignore[assignment]
+            # Which columns of the WORLD joint Jacobian move each of the points S, E, W.
+            self._elbow_support = np.zeros((3, n))
+            for row, jid in enumerate(self._elbow):  # type: ignore[union-attr]
+                for sj in model.supports[jid]:
+                    if sj > 0:
+                        self._elbow_support[row, model.joints[sj].idx_v] = 1.0
         self._llt = eigenpy.LLT(6)
+        self._A = np.empty((6, 6))  # work area of the fast IK path
+        self._Ad = self._A.reshape(-1)[::7]  # its diagonal (a view)
+        self._e = np.empty(6)
         self._build_table(seed_table)
 
     # ------------------------------------------------------------------ basics
@@ -328,6 +421,7 @@ class Kinematics:
         qp = self._q(q)
         fid = self._frame(tool)
         J = pin.computeFrameJacobian(self._model, self._data, qp, fid, pin.LOCAL_WORLD_ALIGNED)
+        J = J.reshape(6, self._n)  # eigenpy hands a 6x1 matrix back as a vector
         return J if self._perm is None else J[:, self._perm]
 
     # ------------------------------------------------------------------ arm angle
@@ -342,56 +436,80 @@ class Kinematics:
         axis (the base x axis when S->W is vertical) made orthogonal to u, and
         v is S->E made orthogonal to u. The angle is the rotation from r to v,
         right-handed about u: 0 when the elbow lies in the vertical plane
-        through S->W on the +z side ("elbow up"). Undefined -- 0 is returned --
-        when E lies on the line S-W.
+        through S->W on the +z side ("elbow up"); see :func:`arm_angle`.
+        Undefined -- 0 is returned -- when E lies on the line S-W.
         """
         if self._elbow is None:
             return 0.0
         pin.forwardKinematics(self._model, self._data, self._q(q))
         return self._arm_angle(False)[0]
 
-    def _arm_angle(self, grad: bool) -> tuple[float, np.ndarray | None]:
-        """Arm angle from ``data.oMi`` (FK done); with ``grad`` also d(angle)/dq (Pinocchio order).
+    def elbow_points(self, q: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Shoulder, elbow and wrist points [m] in the arm base frame (7-axis arms only)."""
+        if self._elbow is None:
+            raise KinematicsError(f"{self.robot.name}: the arm angle is defined for 7-axis arms only")
+        pin.forwardKinematics(self._model, self._data, self._q(q))
+        return tuple(self._oMi[j].translation.copy() for j in self._elbow)  # type: ignore[return-value]
 
-        For the gradient, ``computeJointJacobians`` must have run. With t_v = u x v^
-        and t_r = u x r^ (unit tangents), L = |SW|, rho = |v~|, sigma = |r~|, a = SE:
-        d(psi) = t_v.dE/rho + [-(a.u) t_v/(L rho) + (z.u) t_r/(L sigma)].dW - (sum of both).dS.
+    def elbow_jacobian(self, q: ArrayLike) -> np.ndarray:
+        """Gradient d(arm angle)/dq (n,) [rad per rad or m], J1..Jn; zeros for 1-6 axes."""
+        if self._elbow is None:
+            return np.zeros(self._n)
+        pin.computeJointJacobians(self._model, self._data, self._q(q))
+        g = self._arm_angle(True)[1]
+        return g if self._perm is None else g[self._perm]  # type: ignore[index]
+
+    def _arm_angle(self, grad: bool) -> tuple[float, np.ndarray | None]:
+        """Arm angle from ``data.oMi`` (FK done); with ``grad`` also d(psi)/dq (Pinocchio order).
+
+        For the gradient ``computeJointJacobians`` must have run. With u, r, v
+        the unit vectors of :meth:`elbow_angle`, a = SE, L = |SW|, rho and
+        sigma the lengths of v and r before normalising, t_v = u x v and
+        t_r = u x r: d(psi) = g_e . (dE - dS) + g_w . (dW - dS) with
+        g_e = t_v / rho and g_w = -(a . u) t_v / (L rho) + (ref . u) t_r / (L sigma).
+        Scalar Python arithmetic: faster than numpy on 3-vectors.
         """
         js, je, jw = self._elbow  # type: ignore[misc]
         oMi = self._oMi
-        s = oMi[js].translation
-        sw = oMi[jw].translation - s
-        a = oMi[je].translation - s
-        length = math.sqrt(sw.dot(sw))
-        u = sw / length
-        ref = np.array((0.0, 0.0, 1.0))
-        zu = u[2]
-        r = ref - zu * u
-        sigma = math.sqrt(r.dot(r))
-        if sigma < _VERTICAL:
-            ref = np.array((1.0, 0.0, 0.0))
-            zu = u[0]
-            r = ref - zu * u
-            sigma = math.sqrt(r.dot(r))
-        au = a.dot(u)
-        v = a - au * u
-        rho = math.sqrt(v.dot(v))
-        if rho < 1e-12:
+        sx, sy, sz = oMi[js].translation.tolist()
+        ex, ey, ez = oMi[je].translation.tolist()
+        wx, wy, wz = oMi[jw].translation.tolist()
+        dx, dy, dz = wx - sx, wy - sy, wz - sz
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        ux, uy, uz = dx / length, dy / length, dz / length
+        ax, ay, az = ex - sx, ey - sy, ez - sz
+        ref_u = uz  # reference: base z made orthogonal to u
+        rx, ry, rz = -ref_u * ux, -ref_u * uy, 1.0 - ref_u * uz
+        sigma = math.sqrt(rx * rx + ry * ry + rz * rz)
+        if sigma < _VERTICAL:  # vertical shoulder-wrist line: base x instead
+            ref_u = ux
+            rx, ry, rz = 1.0 - ref_u * ux, -ref_u * uy, -ref_u * uz
+            sigma = math.sqrt(rx * rx + ry * ry + rz * rz)
+        au = ax * ux + ay * uy + az * uz
+        vx, vy, vz = ax - au * ux, ay - au * uy, az - au * uz
+        rho = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if rho < 1e-12:  # elbow on the shoulder-wrist line: undefined
             return 0.0, (np.zeros(self._n) if grad else None)
-        r = r / sigma
-        v = v / rho
-        t_r = np.cross(u, r)
-        psi = math.atan2(v.dot(t_r), v.dot(r))
+        rx, ry, rz = rx / sigma, ry / sigma, rz / sigma
+        vx, vy, vz = vx / rho, vy / rho, vz / rho
+        tx, ty, tz = uy * rz - uz * ry, uz * rx - ux * rz, ux * ry - uy * rx  # t_r = u x r
+        psi = math.atan2(vx * tx + vy * ty + vz * tz, vx * rx + vy * ry + vz * rz)
         if not grad:
             return psi, None
-        t_v = np.cross(u, v)
-        g_e = t_v / rho
-        g_w = (-au / (length * rho)) * t_v + (zu / (length * sigma)) * t_r
-        m, d, lwa = self._model, self._data, pin.LOCAL_WORLD_ALIGNED
-        Js = pin.getJointJacobian(m, d, js, lwa)[:3]
-        Je = pin.getJointJacobian(m, d, je, lwa)[:3]
-        Jw = pin.getJointJacobian(m, d, jw, lwa)[:3]
-        return psi, g_e.dot(Je - Js) + g_w.dot(Jw - Js)
+        px, py, pz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx  # t_v = u x v
+        ce = 1.0 / rho
+        cw = -au / (length * rho)
+        cr = ref_u / (length * sigma)
+        gex, gey, gez = ce * px, ce * py, ce * pz
+        gwx, gwy, gwz = cw * px + cr * tx, cw * py + cr * ty, cw * pz + cr * tz
+        gsx, gsy, gsz = -gex - gwx, -gey - gwy, -gez - gwz
+        # Point P moves at v + omega x P for a WORLD Jacobian column (v, omega): g.(v + omega x P)
+        # = g.v + (P x g).omega. One row per point, masked by the columns that move it.
+        c = np.array((
+            (gsx, gsy, gsz, sy * gsz - sz * gsy, sz * gsx - sx * gsz, sx * gsy - sy * gsx),
+            (gex, gey, gez, ey * gez - ez * gey, ez * gex - ex * gez, ex * gey - ey * gex),
+            (gwx, gwy, gwz, wy * gwz - wz * gwy, wz * gwx - wx * gwz, wx * gwy - wy * gwx)))
+        return psi, (c.dot(self._data.J) * self._elbow_support).sum(axis=0)
 
     # ------------------------------------------------------------------ seed table
 
@@ -400,7 +518,7 @@ class Kinematics:
         self._table_q = np.empty((0, self._n))
         if size <= 0:
             return
-        rng = np.random.default_rng(self._seed)
+        rng = np.random.default_rng((self._seed, _TABLE_STREAM))
         lo, hi = self._pin_limits(None, None)
         qs = lo + (hi - lo) * rng.random((size, self._n))
         feats = np.empty((size, 14))  # p (3), R row-major (9), cos(psi), sin(psi)
@@ -415,15 +533,16 @@ class Kinematics:
             feats[i, 12] = math.cos(psi)
             feats[i, 13] = math.sin(psi)
         self._table_q = qs
-        self._table_f = feats
+        self._table_f = feats.astype(np.float32)  # only ranks restarts: single precision is plenty
+        self._table_p2 = (feats[:, :3] ** 2).sum(axis=1).astype(np.float32)
 
     def _table_distance(self, flange_target: pin.SE3, mask: Mask, elbow: float | None) -> np.ndarray:
         """Squared-ish distance of every table entry to the target (flange pose, arm angle)."""
-        g = np.zeros(14)
+        g = np.zeros(14, dtype=np.float32)
         mp = np.array(mask[:3])
         p = flange_target.translation
         g[:3] = -2.0 * p * mp
-        c = (self._table_f[:, :3][:, mp] ** 2).sum(axis=1)
+        c = self._table_p2 if mp.all() else (self._table_f[:, :3][:, mp] ** 2).sum(axis=1)
         if all(mask[3:]):  # orientation used only when fully constrained
             g[3:12] = -_TABLE_ROT_WEIGHT * flange_target.rotation.reshape(-1)
         if elbow is not None:
@@ -481,36 +600,47 @@ class Kinematics:
         orientation is the target turned about the base x axis. ``rot_err`` is
         the norm of the constrained components of ``w``.
 
-        Method: Levenberg-Marquardt (damped least squares, damping = 0.1 x
-        squared error + 1e-7) on the pose error, with Pinocchio's frame
-        Jacobian. Joint limits are a box: a step that leaves the box is redone
-        with the offending joints stopped at their limit and the others
+        Method: Levenberg-Marquardt (damped least squares, damping = 0.05 x
+        squared error [m^2 + rad^2] + 1e-7) on the pose error, with Pinocchio's
+        frame Jacobian. Joint limits are a box: a step that leaves the box is
+        redone with the offending joints stopped at their limit and the others
         re-solved, then clamped. A commanded arm angle is one more task row,
         with its analytic gradient. The first attempt starts at the seed, so
-        that a solution near the seed is preferred; an attempt that stalls
-        (no 2 % error decrease in 3 iterations) or lasts 16 iterations is
-        restarted from the nearest entries of the seed table, then from
-        uniform random configurations (seeded: the result is reproducible).
-        Revolute joints with more than 2 pi of travel are finally moved by
-        whole turns towards the seed.
+        that a solution near the seed is preferred. An attempt is abandoned
+        when two successive iterations fail to bring the squared error below
+        0.3 x its best value so far in the attempt (Newton converging does far
+        better; an attempt caught at a joint limit does not), or after 14
+        iterations (once the squared error is below 1e-6: 0.9 x and 60
+        iterations, as convergence near a singularity is slow). The next
+        attempt starts from the next nearest entry of the seed table (12 of
+        them), then from uniform random configurations (seeded: the result is
+        reproducible). Revolute joints with more than 2 pi of travel are
+        finally moved by whole turns towards the seed.
+
+        Choose a ``mask`` the arm can satisfy: with fewer than six axes the
+        full pose is generally out of reach and IK then spends ``max_iter``.
         """
-        mask = _mask(mask)
-        lo, hi = self._pin_limits(lower, upper)
-        q0 = np.minimum(np.maximum(self._q(q_seed, "q_seed"), lo), hi)
-        mt = _se3(target, "target")
-        fid = self._frame(tool)
-        flange_target = mt if tool is None else mt * _se3(tool, "tool").inverse()
-        use_elbow = elbow is not None and self._elbow is not None
-        if use_elbow:
-            elbow = math.remainder(float(elbow), _TWO_PI)  # type: ignore[arg-type]
-        if all(mask) and not use_elbow:
-            q, ok, it, pe, re, ee = self._solve_pose(mt, q0, fid, lo, hi, tol_pos, tol_rot, max_iter,
-                                                     flange_target)
+        a = _pose_array(target, "target")
+        if not (tol_pos > 0.0 and tol_rot > 0.0 and tol_elbow > 0.0 and max_iter >= 1):
+            raise KinematicsError("ik: tolerances must be > 0 and max_iter >= 1")
+        if mask is not FULL_MASK:
+            mask = _mask(mask)
+        if lower is None and upper is None:
+            lo, hi, wraps = self._plo, self._phi, self._wrap_default
         else:
-            q, ok, it, pe, re, ee = self._solve_general(
-                mt, q0, fid, lo, hi, tol_pos, tol_rot, tol_elbow, max_iter, flange_target, mask,
-                elbow if use_elbow else None)
-        if ok and self._wraps(lo, hi):
+            lo, hi = self._pin_limits(lower, upper)
+            wraps = self._wraps(lo, hi)
+        q0 = np.minimum(np.maximum(self._q(q_seed, "q_seed"), lo), hi)
+        fid = self._frame(tool)
+        ctx = _Restarts(self, a, tool, mask, None, lo, hi)
+        if elbow is not None and self._elbow is not None:
+            ctx.elbow = math.remainder(float(elbow), _TWO_PI)
+        if ctx.elbow is None and all(mask):
+            q, ok, it, pe, re, ee = self._solve_pose(a, q0, fid, lo, hi, tol_pos, tol_rot, max_iter, ctx)
+        else:
+            q, ok, it, pe, re, ee = self._solve_general(a, q0, fid, lo, hi, tol_pos, tol_rot, tol_elbow,
+                                                        max_iter, ctx)
+        if ok and wraps:
             q = self._nearest_turn(q, q0, lo, hi)
         return IkResult(self._user_q(q), ok, it, pe, re, ee)
 
@@ -534,47 +664,34 @@ class Kinematics:
                 out[i] = c
         return out
 
-    def _restart(self, k: int, state: dict, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Start configuration of restart ``k`` (0-based): the k-th nearest table entry, then random."""
-        if k < _TABLE_RESTARTS and len(self._table_q):
-            dist = state.get("dist")
-            if dist is None:
-                dist = state["dist"] = self._table_distance(state["flange_target"], state["mask"],
-                                                            state["elbow"])
-            i = int(dist.argmin())
-            dist[i] = np.inf
-            return np.minimum(np.maximum(self._table_q[i], lo), hi)
-        rng = state.get("rng")
-        if rng is None:
-            rng = state["rng"] = np.random.default_rng(self._seed)
-        return lo + (hi - lo) * rng.random(self._n)
-
-    def _solve_pose(self, mt: pin.SE3, q: np.ndarray, fid: int, lo: np.ndarray, hi: np.ndarray,
-                    tol_pos: float, tol_rot: float, max_iter: int, flange_target: pin.SE3
+    def _solve_pose(self, target: np.ndarray, q: np.ndarray, fid: int, lo: np.ndarray, hi: np.ndarray,
+                    tol_pos: float, tol_rot: float, max_iter: int, restarts: _Restarts
                     ) -> tuple[np.ndarray, bool, int, float, float, float]:
-        """Full 6-D pose IK, the fast path.
+        """Full 6-D pose IK, the fast path (every Python operation counts here).
 
-        Works in the LOCAL frame of the control point: error
-        ``[R^T (p_t - p), log3(R^T R_t)]`` and the LOCAL Jacobian. Damped least
-        squares is invariant to that rotation of the task space, so this is
-        the same step as with base-frame errors.
+        Error ``[p_t - p, log3(R_t R^T)]`` along the arm base axes with the
+        LOCAL_WORLD_ALIGNED Jacobian (``computeFrameJacobian`` in that frame
+        also updates ``data.oMf``; in LOCAL it does not).
         """
         m, d, oMf = self._model, self._data, self._oMf
-        cfj, log3, local = pin.computeFrameJacobian, pin.log3, pin.LOCAL
+        cfj, log3, lwa = pin.computeFrameJacobian, pin.log3, pin.LOCAL_WORLD_ALIGNED
         mn, mx, dot = np.minimum, np.maximum, np.dot
-        llt = self._llt
-        A = np.empty((6, 6))
-        Ad = A.reshape(-1)[::7]  # view of the diagonal
-        e = np.empty(6)
+        llt, A, Ad, e = self._llt, self._A, self._Ad, self._e
+        one_axis = self._n == 1
+        stall_dec, stall_iters, att_iters = _STALL_DECREASE, _STALL_ITERS, _ATTEMPT_ITERS
+        near, near_dec, near_iters = _NEAR_ERR, _NEAR_DECREASE, _NEAR_ITERS
+        gain, floor = _DAMP_GAIN, _DAMP_FLOOR
+        pt, rt = target[:3, 3].copy(), target[:3, :3].copy()
         tp2, tr2 = tol_pos * tol_pos, tol_rot * tol_rot
-        state = {"flange_target": flange_target, "mask": FULL_MASK, "elbow": None}
         best, best_q, best_pe, best_re = math.inf, q, math.inf, math.inf
-        att_best, since, att, restarts = math.inf, 0, 0, 0
+        att_best, since, att = math.inf, 0, 0
         for it in range(max_iter):
-            J = cfj(m, d, q, fid, local)
-            dm = oMf[fid].actInv(mt)
-            t = dm.translation
-            w = log3(dm.rotation)
+            J = cfj(m, d, q, fid, lwa)
+            if one_axis:  # eigenpy hands a 6x1 matrix back as a vector
+                J = J.reshape(6, 1)
+            M = oMf[fid]
+            t = pt - M.translation
+            w = log3(rt.dot(M.rotation.T))
             pe = t.dot(t)
             re = w.dot(w)
             if pe <= tp2 and re <= tr2:
@@ -582,20 +699,19 @@ class Kinematics:
             err = pe + re
             if err < best:
                 best, best_q, best_pe, best_re = err, q, pe, re
-            if err < att_best * _STALL_DECREASE:
+            if err < att_best * (stall_dec if err > near else near_dec):
                 att_best = err
                 since = 0
             else:
                 since += 1
             att += 1
-            if since > _STALL_ITERS or att > _ATTEMPT_ITERS:
-                q = self._restart(restarts, state, lo, hi)
-                restarts += 1
+            if since > stall_iters or att > (att_iters if err > near else near_iters):
+                q = restarts.next()
                 att_best, since, att = math.inf, 0, 0
                 continue
             e[:3] = t
             e[3:] = w
-            lam = _DAMP_GAIN * err + _DAMP_FLOOR
+            lam = gain * err + floor
             JT = J.T
             dot(J, JT, out=A)
             Ad += lam
@@ -604,7 +720,7 @@ class Kinematics:
             qc = mn(mx(qn, lo), hi)
             dv = qn - qc
             if dv.dot(dv) > 0.0:
-                # Limit-aware step: stop the offending joints at their limit, re-solve the rest.
+                # Limit-aware step: stop the offending joints at their limit, re-solve the others.
                 free = dv == 0.0
                 dqf = qc - q
                 dqf *= ~free
@@ -617,79 +733,92 @@ class Kinematics:
             q = qc
         return best_q, False, max_iter, math.sqrt(best_pe), math.sqrt(best_re), 0.0
 
-    def _solve_general(self, mt: pin.SE3, q: np.ndarray, fid: int, lo: np.ndarray, hi: np.ndarray,
+    def _solve_general(self, target: np.ndarray, q: np.ndarray, fid: int, lo: np.ndarray, hi: np.ndarray,
                        tol_pos: float, tol_rot: float, tol_elbow: float, max_iter: int,
-                       flange_target: pin.SE3, mask: Mask, elbow: float | None
-                       ) -> tuple[np.ndarray, bool, int, float, float, float]:
-        """IK with a task mask and/or a commanded arm angle (errors in the arm base frame)."""
-        m, d, oMf = self._model, self._data, self._oMf
+                       restarts: _Restarts) -> tuple[np.ndarray, bool, int, float, float, float]:
+        """IK with a task mask and/or a commanded arm angle (errors along the arm base axes).
+
+        Rotation rows use the exact derivative of ``w = log3(R_t R^T)``:
+        ``dw = -Jlog3(R_t R^T) · omega dt``, which matters when some components
+        of ``w`` are left free (they need not be small). The arm angle row is
+        ``d(psi)/dq`` (see :meth:`_arm_angle`).
+        """
+        m, d, oMf, n = self._model, self._data, self._oMf, self._n
         lwa, log3, jlog3 = pin.LOCAL_WORLD_ALIGNED, pin.log3, pin.Jlog3
         mn, mx, dot = np.minimum, np.maximum, np.dot
-        mp = np.array(mask[:3])
-        mr = np.array(mask[3:])
-        any_rot = bool(mr.any())
-        partial_rot = any_rot and not mr.all()
+        mask, elbow = restarts.mask, restarts.elbow
+        pos_all, rot_all = all(mask[:3]), all(mask[3:])
+        mp = np.array(mask[:3], dtype=float)
+        mr = np.array(mask[3:], dtype=float)
+        partial_rot = any(mask[3:]) and not rot_all
+        full = pos_all and rot_all
         rows = np.flatnonzero(np.array(mask))
-        nrow = len(rows) + (1 if elbow is not None else 0)
+        k = len(rows)
+        nrow = k + (1 if elbow is not None else 0)
         llt = eigenpy.LLT(nrow)
         A = np.empty((nrow, nrow))
         Ad = A.reshape(-1)[:: nrow + 1]
-        Jt = np.empty((6, self._n))
+        Jm = np.empty((nrow, n))  # task Jacobian: constrained rows, then the arm angle row
+        e = np.empty(nrow)
+        Jt = np.empty((6, n))
         e6 = np.empty(6)
-        pt, rt = mt.translation, mt.rotation
-        tp2, tr2 = tol_pos * tol_pos, tol_rot * tol_rot
-        state = {"flange_target": flange_target, "mask": mask, "elbow": elbow}
+        pt, rt = target[:3, 3].copy(), target[:3, :3].copy()
+        tp2, tr2, te2 = tol_pos * tol_pos, tol_rot * tol_rot, tol_elbow * tol_elbow
         best, best_q, best_pe, best_re, best_ee = math.inf, q, math.inf, math.inf, math.inf
-        att_best, since, att, restarts = math.inf, 0, 0, 0
+        att_best, since, att = math.inf, 0, 0
         for it in range(max_iter):
             if elbow is None:
                 J = pin.computeFrameJacobian(m, d, q, fid, lwa)
             else:
                 pin.computeJointJacobians(m, d, q)
                 J = pin.getFrameJacobian(m, d, fid, lwa)
+            if n == 1:
+                J = J.reshape(6, 1)  # eigenpy hands a 6x1 matrix back as a vector
             M = oMf[fid]
             ep = pt - M.translation
-            E = rt @ M.rotation.T
+            E = rt.dot(M.rotation.T)
             w = log3(E)
-            pe = float((ep * mp).dot(ep))
-            re = float((w * mr).dot(w))
+            pe = ep.dot(ep) if pos_all else (ep * mp).dot(ep)
+            re = w.dot(w) if rot_all else (w * mr).dot(w)
             ee = 0.0
             if elbow is not None:
                 psi, g = self._arm_angle(True)
                 de = math.remainder(elbow - psi, _TWO_PI)
                 ee = de * de
-            if pe <= tp2 and re <= tr2 and ee <= tol_elbow * tol_elbow:
+                Jm[k] = g
+                e[k] = de
+            if pe <= tp2 and re <= tr2 and ee <= te2:
                 return q, True, it, math.sqrt(pe), math.sqrt(re), math.sqrt(ee)
             err = pe + re + ee
             if err < best:
                 best, best_q, best_pe, best_re, best_ee = err, q, pe, re, ee
-            if err < att_best * _STALL_DECREASE:
+            if err < att_best * (_STALL_DECREASE if err > _NEAR_ERR else _NEAR_DECREASE):
                 att_best = err
                 since = 0
             else:
                 since += 1
             att += 1
-            if since > _STALL_ITERS or att > _ATTEMPT_ITERS:
-                q = self._restart(restarts, state, lo, hi)
-                restarts += 1
+            if since > _STALL_ITERS or att > (_ATTEMPT_ITERS if err > _NEAR_ERR else _NEAR_ITERS):
+                q = restarts.next()
                 att_best, since, att = math.inf, 0, 0
                 continue
-            Jt[:3] = J[:3]
-            Jt[3:] = jlog3(E) @ J[3:] if partial_rot else J[3:]
-            e6[:3] = ep
-            e6[3:] = w
-            if elbow is None:
-                Jm = Jt[rows]
-                e = e6[rows]
+            if full:
+                Jm[:6] = J
+                e[:3] = ep
+                e[3:6] = w
             else:
-                Jm = np.vstack((Jt[rows], g))
-                e = np.append(e6[rows], de)
+                Jt[:3] = J[:3]
+                Jt[3:] = jlog3(E).dot(J[3:]) if partial_rot else J[3:]
+                e6[:3] = ep
+                e6[3:] = w
+                Jm[:k] = Jt[rows]
+                e[:k] = e6[rows]
             lam = _DAMP_GAIN * err + _DAMP_FLOOR
             JT = Jm.T
             dot(Jm, JT, out=A)
             Ad += lam
             llt.compute(A)
-            qn = q + JT.dot(llt.solve(e))
+            qn = q + JT.dot(llt.solve(e).reshape(nrow))  # eigenpy: a size-1 vector comes back 1x1
             qc = mn(mx(qn, lo), hi)
             dv = qn - qc
             if dv.dot(dv) > 0.0:
@@ -700,7 +829,7 @@ class Kinematics:
                 dot(Jf, Jf.T, out=A)
                 Ad += lam
                 llt.compute(A)
-                qn = q + dqf + Jf.T.dot(llt.solve(e - Jm.dot(dqf)))
+                qn = q + dqf + Jf.T.dot(llt.solve(e - Jm.dot(dqf)).reshape(nrow))
                 qc = mn(mx(qn, lo), hi)
             q = qc
-        return (best_q, False, max_iter, math.sqrt(best_pe), math.sqrt(best_re), math.sqrt(best_ee))
+        return best_q, False, max_iter, math.sqrt(best_pe), math.sqrt(best_re), math.sqrt(best_ee)

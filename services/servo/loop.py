@@ -29,7 +29,7 @@ from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import AlarmCode, AlarmType, StateBit
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys
-from jara_arm.schema.types import Alarm, LimitValue, Time, TimedJointPos
+from jara_arm.schema.types import Alarm, LimitValue, Time
 
 from .braking import Braking
 from .world import World
@@ -116,6 +116,7 @@ class ServoLoop:
         self._fifo: collections.deque[np.ndarray] = collections.deque()
         self._braking: Braking | None = None
         self._interrupted = False  # the stream ran dry mid-motion; wait for a consistent command
+        self._cmd_moving = False  # the commanded velocity qd is not all zero
         self._calls: collections.deque[tuple[Callable[[], Any], concurrent.futures.Future]] = collections.deque()
         self.received = self.consumed = self.underruns = self.dropped = 0
 
@@ -159,6 +160,9 @@ class ServoLoop:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
         period_ns = self.model.cmd_cycle_ms * 1_000_000
         next_ns = time.monotonic_ns()
+        # A sample's tm is the wall-clock time its cycle stands for (its deadline), so
+        # consecutive samples are exactly one period apart even while the loop catches up.
+        wall_offset = time.time_ns() - next_ns
         window_start = time.monotonic()
         cycles = 0
         try:
@@ -171,7 +175,8 @@ class ServoLoop:
                 if lateness > RESYNC_AFTER:
                     log.warning("servo loop %.0f ms behind schedule; restarting its clock", lateness * 1e3)
                     next_ns = now
-                self._cycle(cycles)
+                    wall_offset = time.time_ns() - now
+                self._cycle(cycles, next_ns + wall_offset)
                 done = time.monotonic_ns()
                 st = self._stats
                 st.lateness.append(lateness)
@@ -188,7 +193,7 @@ class ServoLoop:
             self._failed = exc
             log.exception("servo loop failed")
 
-    def _cycle(self, k: int) -> None:
+    def _cycle(self, k: int, tm_ns: int) -> None:
         if self._estop_sub.try_recv() is not None:
             while self._estop_sub.try_recv() is not None:
                 pass
@@ -205,11 +210,11 @@ class ServoLoop:
         self.world.step()
         pos, vel, eff = self.world.read()
         self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
-        self.state_bits = self._bits(vel)
-        tm = Time.now()
-        self._fb_pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(tm, tuple(pos.tolist()))))
+        pos_list = pos.tolist()
+        self.state_bits = self._bits(vel.tolist())
+        self._fb_pub.put(messages.timed_joint_pos_payload(tm_ns, pos_list))
         if k % STATUS_EVERY == 0:
-            self._publish_status(tm)
+            self._publish_status(Time(tm_ns // 1_000_000_000, tm_ns % 1_000_000_000))
 
     def _take_commands(self) -> None:
         """Move what arrived into the FIFO (or drop it while commands are not accepted)."""
@@ -234,6 +239,7 @@ class ServoLoop:
         if self._braking is not None:
             q, self.qd, self.qdd, done = self._braking.next()
             self.q = self._inside_soft_limits(q)
+            self._cmd_moving = not done
             if done:
                 self._braking = None
             return
@@ -242,7 +248,7 @@ class ServoLoop:
             self.consumed += 1
             self._follow(cmd)
             return
-        if self.servo_on and not self.alarms and np.any(np.abs(self.qd) > REST_SPEED):
+        if self._cmd_moving and self.servo_on and not self.alarms and np.any(np.abs(self.qd) > REST_SPEED):
             self.underruns += 1
             self._stats.underruns += 1
             self._interrupted = True
@@ -250,8 +256,10 @@ class ServoLoop:
             self.brake()
             self._advance()
             return
-        self.qd = np.zeros_like(self.qd)
-        self.qdd = np.zeros_like(self.qdd)
+        if self._cmd_moving:
+            self.qd = np.zeros_like(self.qd)
+            self.qdd = np.zeros_like(self.qdd)
+            self._cmd_moving = False
 
     def _inside_soft_limits(self, q: np.ndarray) -> np.ndarray:
         """``q`` with the arm axes clamped into the soft limits.
@@ -297,6 +305,7 @@ class ServoLoop:
         qd = step / self.dt
         self.qdd = (qd - self.qd) / self.dt
         self.q, self.qd = cmd, qd
+        self._cmd_moving = True
 
     # -- actions (loop thread only: call them through call() from elsewhere) -----
     def brake(self) -> None:
@@ -326,8 +335,9 @@ class ServoLoop:
             return "the arm is still stopping"
         if not self.servo_on:
             self.q = self.fb_pos.copy()  # hold where the brakes held it
-            self.qd[:] = 0.0
-            self.qdd[:] = 0.0
+            self.qd = np.zeros_like(self.qd)
+            self.qdd = np.zeros_like(self.qdd)
+            self._cmd_moving = False
             self._fifo.clear()
             self._interrupted = False
             self.servo_on = True
@@ -370,12 +380,12 @@ class ServoLoop:
         return None
 
     # -- state and publishing -------------------------------------------------------
-    def _bits(self, vel: np.ndarray) -> int:
+    def _bits(self, vel: list[float]) -> int:
         bits = 0
         if self.servo_on:
             bits |= StateBit.SERVO_ON
-        if (self._braking is not None or self._fifo or np.any(self.qd != 0.0)
-                or float(np.max(np.abs(vel))) > REST_SPEED):
+        if (self._braking is not None or self._fifo or self._cmd_moving
+                or max(abs(v) for v in vel) > REST_SPEED):
             bits |= StateBit.MOVING
         if self.alarms:
             bits |= StateBit.ALARM

@@ -104,11 +104,11 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
             log.info("servo down")
 
 
-def _options(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--realtime-priority", type=int, default=DEFAULT_RT_PRIORITY,
                         metavar="N", help="SCHED_FIFO priority of the loop thread, 1..99; 0 for "
                         f"normal scheduling (default: {DEFAULT_RT_PRIORITY})")
 
 
 def run(argv: Sequence[str] | None = None) -> int:
-    return run_service(Service.SERVO, __doc__.splitlines()[0], main, argv, _options)
+    return run_service(Service.SERVO, __doc__.splitlines()[0], main, argv, add_arguments)

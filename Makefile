@@ -1,0 +1,35 @@
+# The two commands: `make up` (set up, start the default system) and `make test`.
+# Only python3 (>= 3.11) and make are needed; everything else goes into .venv.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
+ARGS   ?=
+PYTEST_ARGS ?=
+
+.PHONY: setup up test bench schema clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	rm -f $(VENV)/.installed-*
+	touch $@
+
+setup: $(STAMP)
+
+up: setup
+	$(BIN)/jara-arm up $(ARGS)
+
+test: setup
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+bench: setup
+	$(BIN)/python bench/servo_loop.py
+	$(BIN)/python bench/query_rtt.py
+
+schema: setup
+	$(BIN)/python -m jara_arm.schema.generate
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

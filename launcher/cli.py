@@ -1,0 +1,168 @@
+"""``jara-arm``: run the arm services on this host, one of them, or a bare Zenoh router.
+
+    jara-arm up [--arm ID[:ROBOT]]... [--robot NAME] [--listen ENDPOINT]... [--connect ENDPOINT]...
+                [--config ZENOH_CONFIG_FILE] [--multicast] [--log-level LEVEL]
+    jara-arm service NAME [the service's own arguments; see jara-arm service NAME --help]
+    jara-arm router [--listen ENDPOINT]... [--connect ENDPOINT]... [--config FILE] [--multicast]
+
+A user mistake (unknown robot, bad arm id, a port already in use…) prints one
+readable message and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import sys
+from collections.abc import Sequence
+
+from jara_arm.robots import DEFAULT_ROBOT, ROBOTS
+from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, check_arm
+from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments
+
+from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router
+from .services import NAMES, SERVICES, spec
+from .supervisor import StopSignals
+from .up import ArmSpec, UpSettings, run_up
+
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+USAGE_ERROR = 2
+
+
+class _Parsers:
+    """The top-level parser and its subcommand parsers, by name."""
+
+    def __init__(self) -> None:
+        self.top = argparse.ArgumentParser(
+            prog="jara-arm", description="JARA_ARM robot-arm services over Zenoh.")
+        sub = self.top.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+        self.up = sub.add_parser(
+            "up", help="run every service of every arm behind one Zenoh router",
+            description="Open a Zenoh router on the --listen endpoints (default "
+            f"{DEFAULT_LISTEN}) and run every service of every arm as a process of its own "
+            f"that joins it. Services: {', '.join(NAMES)}.")
+        self.up.add_argument("--arm", action="append", default=[], metavar="ID[:ROBOT]",
+                             help=f"an arm to run, optionally with its own robot model "
+                             f"(repeatable; default: {DEFAULT_ARM})")
+        self.up.add_argument("--robot", default=DEFAULT_ROBOT, choices=list(ROBOTS),
+                             help=f"robot model of the arms given without one (default: {DEFAULT_ROBOT})")
+        _log_level(self.up)
+        _router_zenoh_arguments(self.up)
+
+        self.service = sub.add_parser(
+            "service", help="run one service in this process",
+            description="Run one service of one arm in this process (as compose does).")
+        self.service.add_argument("name", choices=NAMES, metavar="NAME",
+                                  help="; ".join(f"{s.name}: {s.description}" for s in SERVICES))
+        self.service.add_argument("args", nargs=argparse.REMAINDER,
+                                  help="the service's arguments (jara-arm service NAME --help)")
+
+        self.router = sub.add_parser(
+            "router", help="run a plain Zenoh router that services and clients join",
+            description=f"A Zenoh router (default listen endpoint {DEFAULT_LISTEN}) that runs "
+            "until SIGINT/SIGTERM, reporting the services that join or leave.")
+        _log_level(self.router)
+        _router_zenoh_arguments(self.router)
+
+
+def _log_level(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--log-level", type=str.upper, default="INFO", choices=LOG_LEVELS,
+                        help="default: INFO")
+
+
+def _router_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """The shared Zenoh options, with the mode fixed to router (so --mode is hidden)."""
+    add_zenoh_arguments(parser, default_mode="router")
+    for action in parser._actions:  # argparse has no public way to drop an option
+        if "--mode" in action.option_strings:
+            action.choices = ["router"]
+            action.help = argparse.SUPPRESS
+
+
+def command_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, list[str]]:
+    """The parser that reads ``jara-arm <argv>``, and the arguments it gets.
+
+    ``["service", "servo", "--arm", "a1"]`` gives the servo's own parser and
+    ``["--arm", "a1"]``. ValueError for an unknown command or service.
+    """
+    argv = list(argv)
+    parsers = _Parsers()
+    if argv[:1] == ["up"]:
+        return parsers.up, argv[1:]
+    if argv[:1] == ["router"]:
+        return parsers.router, argv[1:]
+    if argv[:1] == ["service"] and len(argv) >= 2 and argv[1] in NAMES:
+        return spec(argv[1]).parser(), argv[2:]
+    raise ValueError(f"not a jara-arm command: {' '.join(argv)!r}")
+
+
+def _router_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> RouterSettings:
+    settings = RouterSettings(tuple(args.listen), tuple(args.connect), args.config, args.multicast)
+    try:  # resolve the listen endpoints once (--listen, else the config file's, else the default)
+        return dataclasses.replace(settings, listen=settings.endpoints())
+    except RouterError as exc:
+        parser.error(str(exc))
+
+
+def _up_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> UpSettings:
+    """Check what argparse cannot: arm ids, per-arm robots, duplicates (exit 2 if wrong)."""
+    arms: list[ArmSpec] = []
+    for item in args.arm or [DEFAULT_ARM]:
+        arm, sep, robot = item.partition(":")
+        robot = robot if sep else args.robot
+        try:
+            check_arm(arm)
+        except ArmIdError as exc:
+            parser.error(f"--arm {item}: {exc}")
+        if robot not in ROBOTS:
+            parser.error(f"--arm {item}: unknown robot {robot!r} (choose from {', '.join(ROBOTS)})")
+        if any(a.arm == arm for a in arms):
+            parser.error(f"--arm {item}: arm {arm!r} is given twice")
+        arms.append(ArmSpec(arm, robot))
+    return UpSettings(tuple(arms), _router_settings(args, parser), args.log_level)
+
+
+def _setup_logging(level: str) -> None:
+    """The launcher's own messages: stderr, in the format of the services' log lines."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(
+        "%(asctime)s.%(msecs)03d %(levelname)-7s jara-arm: %(message)s", datefmt="%H:%M:%S"))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(level)
+
+
+def _run(argv: list[str]) -> int:
+    parsers = _Parsers()
+    args = parsers.top.parse_args(argv)
+    if args.command == "service":
+        return spec(args.name).run(args.args)
+    parser = parsers.up if args.command == "up" else parsers.router
+    settings = (_up_settings(args, parser) if args.command == "up"
+                else _router_settings(args, parser))
+    _setup_logging(args.log_level)
+    signals = StopSignals()  # before any child exists: a signal must never orphan one
+    try:
+        if isinstance(settings, UpSettings):
+            return run_up(settings, signals)
+        return run_router(settings, signals)
+    except RouterError as exc:
+        parser.error(str(exc))
+    return USAGE_ERROR  # not reached: parser.error exits
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``jara-arm`` console script; returns the exit status."""
+    try:
+        return _run(list(sys.argv[1:] if argv is None else argv))
+    except SystemExit as exc:  # argparse's exits (usage errors: 2, --help: 0)
+        if exc.code is None or isinstance(exc.code, int):
+            return exc.code or 0
+        print(exc.code, file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,138 @@
+"""The launcher's Zenoh router session, shared by ``jara-arm up`` and ``jara-arm router``.
+
+Clients and peers that connect to any of its listen endpoints reach every
+service that joined through it: the router routes between its clients.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import re
+import sys
+
+import zenoh
+
+from jara_arm.schema.errors import JaraArmError
+from jara_arm.schema.keys import any_arm_alive, parse_alive
+from jara_arm.services.runtime.zenoh_args import zenoh_config
+
+from .supervisor import StopSignals
+
+log = logging.getLogger("jara_arm.launcher")
+
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+_RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
+_JSON5_MESSAGE = re.compile(r'msg: "(.*?)", location')
+#: Unspecified addresses a router may listen on, and what a local process connects to instead.
+_UNSPECIFIED = {"0.0.0.0": "127.0.0.1", "[::]": "[::1]"}
+
+
+class RouterError(JaraArmError):
+    """The router session could not be opened (bad endpoint, port in use, bad config file)."""
+
+
+def zerror_text(exc: BaseException) -> str:
+    """A Zenoh error without the Rust source locations and debug wrapping it carries."""
+    text = _RUST_LOCATION.sub("", str(exc)).strip()
+    wrapped = _JSON5_MESSAGE.search(text)  # Json5Err(Message { msg: "...", location: ... })
+    return wrapped.group(1) if wrapped else text
+
+
+@dataclasses.dataclass(frozen=True)
+class RouterSettings:
+    """The Zenoh options of ``up`` and ``router`` (the mode is always ``router``)."""
+
+    listen: tuple[str, ...] = ()
+    connect: tuple[str, ...] = ()
+    config: str | None = None
+    multicast: bool = False
+
+    def endpoints(self) -> tuple[str, ...]:
+        """The endpoints to listen on: ``--listen``, else the config file's, else the default."""
+        if self.listen:
+            return self.listen
+        if self.config:
+            try:
+                listen = json.loads(zenoh.Config.from_file(self.config).get_json("listen/endpoints"))
+            except (zenoh.ZError, ValueError) as exc:
+                raise RouterError(f"cannot read Zenoh config {self.config}: {zerror_text(exc)}") from exc
+            if isinstance(listen, list) and listen:  # not the per-mode default map
+                return tuple(str(e) for e in listen)
+        return (DEFAULT_LISTEN,)
+
+    def config_object(self) -> zenoh.Config:
+        try:
+            return zenoh_config("router", self.endpoints(), self.connect, self.config, self.multicast)
+        except zenoh.ZError as exc:
+            raise RouterError(f"bad Zenoh settings: {zerror_text(exc)}") from exc
+
+
+def open_router(settings: RouterSettings) -> zenoh.Session:
+    """Open the router session (RouterError, readable, if it cannot)."""
+    conf = settings.config_object()
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise RouterError(f"cannot open the Zenoh router on {', '.join(settings.endpoints())}: "
+                          f"{zerror_text(exc)}") from exc
+
+
+def local_endpoint(endpoint: str) -> str:
+    """The endpoint a process on this host connects to, for a router listening on ``endpoint``."""
+    for unspecified, loopback in _UNSPECIFIED.items():
+        proto, sep, rest = endpoint.partition("/")
+        if sep and rest.startswith(unspecified + ":"):
+            return f"{proto}/{loopback}{rest[len(unspecified):]}"
+    return endpoint
+
+
+class Presence:
+    """Which ``(arm, service)`` liveliness tokens are up, from a liveliness subscriber."""
+
+    def __init__(self, session: zenoh.Session, capacity: int = 1024) -> None:
+        self.alive: set[tuple[str, str]] = set()
+        # history=True: tokens declared before this subscriber are reported too.
+        self._sub = session.liveliness().declare_subscriber(
+            any_arm_alive(), zenoh.handlers.FifoChannel(capacity), history=True)
+
+    def drain(self) -> list[tuple[bool, str, str]]:
+        """The changes since the last call: ``(up, arm, service)``, in order."""
+        changes: list[tuple[bool, str, str]] = []
+        while (sample := self._sub.try_recv()) is not None:
+            try:
+                arm, service = parse_alive(str(sample.key_expr))
+            except JaraArmError:
+                continue  # someone else's token under our prefix
+            up = sample.kind == zenoh.SampleKind.PUT
+            if up != ((arm, service) in self.alive):
+                (self.alive.add if up else self.alive.discard)((arm, service))
+                changes.append((up, arm, service))
+        return changes
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def say(line: str) -> None:
+    """One line on stdout, flushed; a closed stdout (``| head``) is not an error."""
+    try:
+        print(line, flush=True)
+    except (BrokenPipeError, ValueError):
+        pass
+
+
+def run_router(settings: RouterSettings, signals: StopSignals) -> int:
+    """``jara-arm router``: route until SIGINT/SIGTERM, reporting services that join or leave."""
+    with open_router(settings) as session:
+        presence = Presence(session)
+        say(f"jara-arm: ready: router; listening on {', '.join(settings.endpoints())}")
+        while not signals.stop.wait(0.1):
+            for up, arm, service in presence.drain():
+                log.info("%s (%s) %s", service, arm, "joined" if up else "left")
+        log.info("%s: stopping", signals.name)
+        presence.close()
+    log.info("router stopped")
+    sys.stdout.flush()
+    return 0

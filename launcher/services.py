@@ -1,0 +1,73 @@
+"""The table of services the launcher runs for every arm, in start order.
+
+A service is a module ``jara_arm.services.<x>`` with a ``main.run(argv) -> int``
+entry (built with ``runtime.service.run_service``) and a ``__main__`` so that
+``python -m jara_arm.services.<x>`` runs it. List a service here only once its
+module exists; ``jara-arm up`` starts them in this order and stops them in the
+reverse order (the command service before the servo it drives).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+from collections.abc import Callable, Sequence
+from types import ModuleType
+
+from jara_arm.schema.keys import Service
+
+#: Names a service's ``main`` module may give the hook that adds its own options
+#: to the shared parser (``run_service(..., extend=hook)``), public name first.
+_OPTION_HOOKS = ("add_arguments",)
+
+
+@dataclasses.dataclass(frozen=True)
+class ServiceSpec:
+    """One row of the table: which service, which module, what it does."""
+
+    service: Service
+    module: str
+    description: str
+
+    @property
+    def name(self) -> str:
+        """The ``<service>`` key chunk, also the ``jara-arm service NAME`` name."""
+        return self.service.value
+
+    def entry(self) -> ModuleType:
+        """The service's ``main`` module (imported on demand: PyBullet is heavy)."""
+        return importlib.import_module(f"{self.module}.main")
+
+    def run(self, argv: Sequence[str]) -> int:
+        """Run the service in this process, as ``python -m <module> <argv>`` would."""
+        return int(self.entry().run(list(argv)))
+
+    def parser(self) -> argparse.ArgumentParser:
+        """The service's own argument parser: the shared options plus its extra ones."""
+        from jara_arm.services.runtime.service import service_parser
+
+        entry = self.entry()
+        parser = service_parser(self.service, self.description)
+        for hook_name in _OPTION_HOOKS:
+            hook: Callable[[argparse.ArgumentParser], None] | None = getattr(entry, hook_name, None)
+            if callable(hook):
+                hook(parser)
+                break
+        return parser
+
+
+# One line per service, lower layers first.
+SERVICES: tuple[ServiceSpec, ...] = (
+    ServiceSpec(Service.SERVO, "jara_arm.services.servo", "low level: simulated arm, SyncFIFO servo loop, Servo/Common"),
+)
+
+NAMES: tuple[str, ...] = tuple(s.name for s in SERVICES)
+
+
+def spec(name: str) -> ServiceSpec:
+    """The table row of service ``name``; KeyError naming the valid ones otherwise."""
+    for s in SERVICES:
+        if s.name == name:
+            return s
+    raise KeyError(f"no service {name!r}; services: {', '.join(NAMES)}")

@@ -1,0 +1,160 @@
+"""``jara-arm up``: every service of every arm, behind one Zenoh router, on this host.
+
+Topology: the launcher opens one router session listening on the given
+endpoints; each service of each arm is a process of its own that joins it as a
+client on the first of them. A client or peer connecting to any listen endpoint
+therefore reaches every service of every arm. The launcher prints the
+services' logs (received over Zenoh), one ready line once every liveliness
+token is up, restarts crashed services with backoff, and stops them all, in
+reverse start order, on SIGINT/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import sys
+import time
+
+import zenoh
+
+from jara_arm.schema import codec, messages
+from jara_arm.schema.errors import JaraArmError
+from jara_arm.schema.keys import any_arm_log, parse_log
+
+from .router import Presence, RouterSettings, local_endpoint, open_router, say
+from .services import SERVICES, ServiceSpec
+from .supervisor import Child, StopSignals, Supervisor
+
+log = logging.getLogger("jara_arm.launcher")
+
+READY_TIMEOUT = 60.0  #: warn (and keep waiting) if the services are not all alive by then [s]
+POLL_PERIOD = 0.1  #: main loop period: children, logs, liveliness [s]
+_LOG_QUEUE = 4096  #: log records buffered between two polls; more are dropped by Zenoh
+_LOGS_PER_POLL = 2000  #: bound on the records printed per poll, so supervision keeps its pace
+
+
+@dataclasses.dataclass(frozen=True)
+class ArmSpec:
+    arm: str
+    robot: str
+
+
+@dataclasses.dataclass(frozen=True)
+class UpSettings:
+    arms: tuple[ArmSpec, ...]
+    router: RouterSettings
+    log_level: str = "INFO"
+
+
+def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list[str]:
+    """The command line of one service process: a client of the launcher's router."""
+    argv = [sys.executable, "-m", service.module, "--arm", arm.arm, "--robot", arm.robot,
+            "--mode", "client", "--connect", local_endpoint(settings.router.endpoints()[0]),
+            "--exit-with-parent", "--log-level", settings.log_level]
+    if settings.router.config:
+        argv += ["--config", os.path.abspath(settings.router.config)]
+    return argv
+
+
+def label(service: str, arm: str) -> str:
+    return f"{service} ({arm})"
+
+
+def format_log(key: str, payload: bytes) -> str:
+    """``HH:MM:SS.mmm LEVEL arm/service: msg`` for one ``LogRecord`` (local time)."""
+    arm, service = parse_log(key)
+    try:
+        rec = codec.decode_message(messages.LOG_RECORD, payload)
+    except JaraArmError as exc:
+        return f"{time.strftime('%H:%M:%S')} ?       {arm}/{service}: (undecodable log record: {exc})"
+    stamp = f"{time.strftime('%H:%M:%S', time.localtime(rec.t))}.{int(rec.t * 1000.0) % 1000:03d}"
+    return f"{stamp} {rec.level:<7} {arm}/{service}: {rec.msg}"
+
+
+class LogPrinter:
+    """Prints what arrives on ``JARA_ARM/*/log/*``; polled, never a Zenoh callback."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self._sub = session.declare_subscriber(any_arm_log(), zenoh.handlers.FifoChannel(_LOG_QUEUE))
+
+    def drain(self) -> None:
+        for _ in range(_LOGS_PER_POLL):
+            sample = self._sub.try_recv()
+            if sample is None:
+                return
+            try:
+                line = format_log(str(sample.key_expr), sample.payload.to_bytes())
+            except Exception as exc:  # anyone may publish here: never let it stop the launcher
+                log.debug("unprintable log record on %s: %s", sample.key_expr, exc)
+                continue
+            say(line)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class Readiness:
+    """Prints the one ready line once every expected service is alive; warns while not."""
+
+    def __init__(self, settings: UpSettings, presence: Presence) -> None:
+        self.presence = presence
+        self.expected = [(a.arm, s.name) for a in settings.arms for s in SERVICES]
+        self.ready = False
+        arms = "; ".join(f"{a.arm} ({a.robot}): {', '.join(s.name for s in SERVICES)}"
+                         for a in settings.arms)
+        self.line = f"jara-arm: ready: {arms}; listening on {', '.join(settings.router.endpoints())}"
+        self._warn_at = time.monotonic() + READY_TIMEOUT
+
+    def missing(self) -> list[tuple[str, str]]:
+        return [k for k in self.expected if k not in self.presence.alive]
+
+    def poll(self) -> None:
+        expected = set(self.expected)
+        for up, arm, service in self.presence.drain():
+            if (arm, service) not in expected:
+                continue
+            if not self.ready:
+                log.debug("%s is alive", label(service, arm))
+            elif up:
+                log.info("%s is alive again", label(service, arm))
+            else:
+                log.warning("%s is no longer alive", label(service, arm))
+        missing = self.missing()
+        if not missing and not self.ready:
+            self.ready = True
+            say(self.line)
+        elif missing and not self.ready and time.monotonic() >= self._warn_at:
+            self._warn_at += READY_TIMEOUT
+            log.warning("not ready after %.0f s; still waiting for %s", READY_TIMEOUT,
+                        ", ".join(label(s, a) for a, s in missing))
+
+
+def run_up(settings: UpSettings, signals: StopSignals) -> int:
+    """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
+    with open_router(settings.router) as session:
+        logs = LogPrinter(session)
+        presence = Presence(session)
+        readiness = Readiness(settings, presence)
+        supervisor = Supervisor([
+            [Child(label(s.name, a.arm), child_argv(s, a, settings)) for a in settings.arms]
+            for s in SERVICES])
+        log.info("router listening on %s; starting %d service process(es)",
+                 ", ".join(settings.router.endpoints()), len(supervisor.children))
+        try:
+            if not signals.stop.is_set():  # a Ctrl-C while the router opened
+                supervisor.start()
+            while not signals.stop.wait(POLL_PERIOD):
+                logs.drain()
+                readiness.poll()
+                supervisor.poll()
+            log.info("%s: stopping", signals.name)
+        finally:
+            # Also on an unexpected error: never leave a child behind.
+            supervisor.stop(idle=logs.drain, hurry=signals.hurry)
+            logs.drain()
+            logs.close()
+            presence.close()
+    log.info("stopped")
+    return 0

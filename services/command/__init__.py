@@ -1,0 +1,1 @@
+"""The command service (middle level): ``Common`` and ``Middle`` of JARA_ARM, motion queue, settings."""

@@ -1,0 +1,91 @@
+"""``ManipulatorCommonInterface_Common`` of the middle level, one method per IDL operation.
+
+Everything the low level owns (servo power, joint feedback, joint soft limits,
+alarms, manipulator information) is passed through to the servo's
+``Servo/Common/<op>``, so that the two levels never disagree: the reply is the
+servo's, decoded and re-encoded through the schema. ``getState`` is the
+command's own (``state.py``): it adds the queue and the pause to the servo's bits.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from jara_arm.schema.codec import Reply
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.operations import OP
+from jara_arm.schema.planner import ControlAction
+from jara_arm.schema.types import LimitValue
+from jara_arm.services.runtime.rpc import ok, refuse
+
+from .core import Core, with_note
+
+log = logging.getLogger(__name__)
+
+
+class CommandCommon:
+    """The Common interface at ``JARA_ARM/<arm>/Common/<op>``."""
+
+    def __init__(self, core: Core) -> None:
+        self.core = core
+
+    def clearAlarms(self) -> Reply:
+        with self.core.serial:
+            reply = self.core.servo.call(OP.clearAlarms)
+            if reply.id != ReturnCode.NG:  # the servo answered: the alarm bit read next shows it
+                self.core.state.await_servo()
+            return reply
+
+    def getActiveAlarm(self) -> Reply:
+        return self.core.servo.call(OP.getActiveAlarm)
+
+    def getFeedbackPosJoint(self) -> Reply:
+        return self.core.servo.call(OP.getFeedbackPosJoint)
+
+    def getManipInfo(self) -> Reply:
+        return self.core.servo.call(OP.getManipInfo)
+
+    def getSoftLimitJoint(self) -> Reply:
+        return self.core.servo.call(OP.getSoftLimitJoint)
+
+    def getState(self) -> Reply:
+        return ok(state=self.core.state.view().bits)
+
+    def servoOFF(self) -> Reply:
+        """Servo off first (the brakes hold at once), then the planner forgets its queue."""
+        core = self.core
+        with core.serial:
+            reply = core.servo.call(OP.servoOFF)
+            # Abort even if the servo did not answer: nothing must be streamed any more.
+            abort = core.planner.control(ControlAction.ABORT)
+            core.state.discarded()
+            if reply.ok:
+                core.state.await_servo(lambda st: not st.servoOn)
+                log.info("servo off; motion queue discarded")
+            if not abort.ok:
+                # The servo is off, which is what was asked; a missing planner has nothing queued.
+                return with_note(reply, f"planner abort not confirmed: {abort.comment}")
+            return reply
+
+    def servoON(self) -> Reply:
+        core = self.core
+        with core.serial:
+            reply = core.servo.call(OP.servoON)
+            if reply.ok:
+                core.state.await_servo(lambda st: st.servoOn)  # getState shows 0x01 from now on
+                log.info("servo on")
+            return reply
+
+    def setSoftLimitJoint(self, softLimit: tuple[LimitValue, ...]) -> Reply:
+        """Refused while moving (servo or queue) or alarmed; the servo checks the values."""
+        core = self.core
+        with core.serial:
+            view = core.state.view()
+            if view.moving:
+                why = (f"{view.queue_length} motion(s) queued" if view.queue_length
+                       else "the arm is moving")
+                return refuse(ReturnCode.STATUS_ERR, f"{OP.setSoftLimitJoint} refused while moving: {why}")
+            if view.alarm:
+                return refuse(ReturnCode.STATUS_ERR, f"{OP.setSoftLimitJoint} refused: an alarm is active "
+                              f"({OP.getActiveAlarm}, {OP.clearAlarms})")
+            return core.servo.call(OP.setSoftLimitJoint, {"softLimit": softLimit})

@@ -1,0 +1,260 @@
+"""``ManipulatorCommonInterface_Middle``, one method per IDL operation.
+
+Settings live in a frozen :class:`Settings` value that each setter replaces
+(``settings.py``: validation and defaults). Motion commands are checked against
+the state here and planned by the planner service (``schema/planner.py``);
+pause, resume and stop go to the planner's control.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from jara_arm.schema.codec import Reply
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.operations import MIDDLE, OP
+from jara_arm.schema.planner import ControlAction, MotionRequest
+from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, HgMatrix, JointPos, LimitValue
+from jara_arm.services.runtime.rpc import ok, refuse
+
+from .cartesian import CartesianFeedback
+from .core import Core
+from .feedback import JointFeedback
+from .settings import Settings
+
+log = logging.getLogger(__name__)
+
+#: LIN and CIRC move in Cartesian space and use the Cartesian speed ratio. Every other
+#: motion -- PTP joint, PTP Cartesian (joint-interpolated), goHome (a joint PTP) and the
+#: gripper commands (a joint axis) -- uses the joint speed ratio.
+CARTESIAN_RATIO_OPS = frozenset({
+    OP.moveLinearCartesianAbs, OP.moveLinearCartesianRel,
+    OP.moveCircularCartesianAbs, OP.moveCircularCartesianRel,
+})
+#: Full opening of ``moveGripper`` [%].
+MAX_GRIPPER_RATIO = 100
+
+
+class CommandMiddle:
+    """The Middle interface at ``JARA_ARM/<arm>/Middle/<op>``; runs on one RPC thread."""
+
+    def __init__(self, core: Core, settings: Settings, feedback: JointFeedback,
+                 cartesian: CartesianFeedback) -> None:
+        self.core = core
+        self.settings = settings
+        self._feedback = feedback
+        self._cartesian = cartesian  # used on this interface's RPC thread only
+
+    # -- motions ------------------------------------------------------------------
+    def movePTPJointAbs(self, jointPoints: JointPos) -> Reply:
+        return self._motion(OP.movePTPJointAbs, jointPoints=jointPoints)
+
+    def movePTPJointRel(self, jointPoints: JointPos) -> Reply:
+        return self._motion(OP.movePTPJointRel, jointPoints=jointPoints)
+
+    def movePTPCartesianAbs(self, carPoint: CarPosWithElbow) -> Reply:
+        return self._motion(OP.movePTPCartesianAbs, carPoint=carPoint)
+
+    def movePTPCartesianRel(self, carPoint: CarPosWithElbow) -> Reply:
+        return self._motion(OP.movePTPCartesianRel, carPoint=carPoint)
+
+    def moveLinearCartesianAbs(self, carPoint: CarPosWithElbow) -> Reply:
+        return self._motion(OP.moveLinearCartesianAbs, carPoint=carPoint)
+
+    def moveLinearCartesianRel(self, carPoint: CarPosWithElbow) -> Reply:
+        return self._motion(OP.moveLinearCartesianRel, carPoint=carPoint)
+
+    def moveCircularCartesianAbs(self, carPointR: CarPosWithElbow, carPointT: CarPosWithElbow) -> Reply:
+        return self._motion(OP.moveCircularCartesianAbs, carPointR=carPointR, carPointT=carPointT)
+
+    def moveCircularCartesianRel(self, carPointR: CarPosWithElbow, carPointT: CarPosWithElbow) -> Reply:
+        return self._motion(OP.moveCircularCartesianRel, carPointR=carPointR, carPointT=carPointT)
+
+    def goHome(self) -> Reply:
+        return self._motion(OP.goHome)
+
+    def moveGripper(self, angleRatio: int) -> Reply:
+        return self._motion(OP.moveGripper, angleRatio=angleRatio)
+
+    def openGripper(self) -> Reply:
+        return self._motion(OP.openGripper)
+
+    def closeGripper(self) -> Reply:
+        return self._motion(OP.closeGripper)
+
+    def _motion(self, name: str, **args: Any) -> Reply:
+        """Check the state, then have the planner check the geometry and queue the motion."""
+        core = self.core
+        op = MIDDLE[name]
+        with core.serial:
+            view = core.state.view()
+            # The order of the refusals is DECISIONS.md's: state first, values last.
+            if not view.servo_on:
+                why = ("the servo is off: call servoON first" if view.servo_heard else
+                       "no Servo/status from the servo service: is it running?")
+                return refuse(ReturnCode.NOT_SV_ON_ERR, f"{name} refused: {why}")
+            if view.alarm:
+                return refuse(ReturnCode.STATUS_ERR, f"{name} refused: an alarm is active "
+                              f"({OP.getActiveAlarm}, then {OP.clearAlarms} and {OP.servoON})")
+            # The speed ratio starts at 0 % (specification): until it is set, nothing may move.
+            if name in CARTESIAN_RATIO_OPS:
+                ratio, setter = self.settings.spd_ratio_cartesian, OP.setSpeedCartesian
+            else:
+                ratio, setter = self.settings.spd_ratio_joint, OP.setSpeedJoint
+            if ratio == 0:
+                return refuse(ReturnCode.STATUS_ERR, f"{name} refused: the speed ratio is 0 %; "
+                              f"set it with {setter}")
+            if view.full:
+                return refuse(ReturnCode.FULL_MOTION_QUEUE_ERR, f"{name} refused: the motion queue "
+                              f"holds {view.queue_length} of {view.capacity} motions")
+            if "jointPoints" in args:
+                self.settings.check_joint_points("jointPoints", args["jointPoints"])
+            if "angleRatio" in args and args["angleRatio"] > MAX_GRIPPER_RATIO:
+                return refuse(ReturnCode.VALUE_ERR, f"angleRatio: {args['angleRatio']} % is above "
+                              f"{MAX_GRIPPER_RATIO} %")
+            limits = core.servo.call(OP.getSoftLimitJoint)  # the servo's, as they are now
+            if not limits.ok:
+                return refuse(ReturnCode.NG, f"{name} refused: joint soft limits unavailable: "
+                              f"{limits.comment}")
+            motion = core.state.allocate()
+            wire_args = {p.name: p.type.encode(args[p.name]) for p in op.inputs}
+            request = MotionRequest(motion, name, wire_args,
+                                    self.settings.snapshot(limits["softLimit"]))
+            reply = core.planner.plan(request)
+            if reply.ok:
+                core.state.accepted(motion)
+                log.debug("motion %d %s queued", motion, name)
+            else:
+                log.info("motion %d %s refused by the planner: %s", motion, name, reply.comment)
+            return Reply(reply.id, reply.comment)
+
+    # -- pause, resume, stop ----------------------------------------------------------
+    def pause(self) -> Reply:
+        """Ignored (OK, says so) when servo off, alarmed, already paused or not moving."""
+        core = self.core
+        with core.serial:
+            view = core.state.view()
+            why = ("the servo is off" if not view.servo_on else "an alarm is active" if view.alarm
+                   else "already paused" if view.paused else "not moving" if not view.moving else "")
+            if why:
+                return ok(f"{OP.pause} ignored: {why}")
+            reply = core.planner.control(ControlAction.PAUSE)
+            if reply.ok:
+                core.state.set_paused(True)
+            return reply
+
+    def resume(self) -> Reply:
+        """Ignored (OK, says so) unless paused."""
+        core = self.core
+        with core.serial:
+            if not core.state.view().paused:
+                return ok(f"{OP.resume} ignored: not paused")
+            reply = core.planner.control(ControlAction.RESUME)
+            if reply.ok:
+                core.state.set_paused(False)
+            return reply
+
+    def stop(self) -> Reply:
+        """Ignored (OK, says so) when servo off or alarmed; else the queue and the pause go."""
+        core = self.core
+        with core.serial:
+            view = core.state.view()
+            if not view.servo_on or view.alarm:
+                why = "the servo is off" if not view.servo_on else "an alarm is active"
+                return ok(f"{OP.stop} ignored: {why}")
+            reply = core.planner.control(ControlAction.STOP)
+            if reply.ok:
+                core.state.discarded()
+            return reply
+
+    # -- feedback -------------------------------------------------------------------------
+    def getFeedbackPosCartesian(self) -> Reply:
+        """Control point ``inv(B) · T_flange · C`` of the newest joint feedback."""
+        joints = self._feedback.joints()
+        if not joints.ok:
+            return joints
+        s = self.settings
+        return ok(pos=self._cartesian.pose(joints["pos"], s.base_offset, s.control_point_offset))
+
+    # -- speeds -----------------------------------------------------------------------
+    def getMaxSpeedCartesian(self) -> Reply:
+        return ok(speed=self.settings.max_speed_cartesian)
+
+    def setMaxSpeedCartesian(self, speed: CartesianSpeed) -> Reply:
+        self.settings = self.settings.with_max_speed_cartesian(speed)
+        return ok()
+
+    def getMaxSpeedJoint(self) -> Reply:
+        return ok(speed=self.settings.max_speed_joint)
+
+    def setMaxSpeedJoint(self, speed: tuple[float, ...]) -> Reply:
+        self.settings = self.settings.with_max_speed_joint(speed)
+        return ok()
+
+    def setSpeedCartesian(self, spdRatio: int) -> Reply:
+        self.settings = self.settings.with_speed_cartesian(spdRatio)
+        return ok()
+
+    def setSpeedJoint(self, spdRatio: int) -> Reply:
+        self.settings = self.settings.with_speed_joint(spdRatio)
+        return ok()
+
+    # -- acceleration times -------------------------------------------------------------
+    def getMinAccelTimeCartesian(self) -> Reply:
+        return ok(aclTime=self.settings.min_accel_time_cartesian)
+
+    def setMinAccelTimeCartesian(self, aclTime: float) -> Reply:
+        self.settings = self.settings.with_min_accel_time_cartesian(aclTime)
+        return ok()
+
+    def getMinAccelTimeJoint(self) -> Reply:
+        return ok(aclTime=self.settings.min_accel_time_joint)
+
+    def setMinAccelTimeJoint(self, aclTime: float) -> Reply:
+        self.settings = self.settings.with_min_accel_time_joint(aclTime)
+        return ok()
+
+    def setAccelTimeCartesian(self, aclTime: float) -> Reply:
+        self.settings = self.settings.with_accel_time_cartesian(aclTime)
+        return ok()
+
+    def setAccelTimeJoint(self, aclTime: float) -> Reply:
+        self.settings = self.settings.with_accel_time_joint(aclTime)
+        return ok()
+
+    # -- limits and frames ------------------------------------------------------------------
+    def getSoftLimitCartesian(self) -> Reply:
+        x, y, z = self.settings.cartesian_limits
+        return ok(xLimit=x, yLimit=y, zLimit=z)
+
+    def setSoftLimitCartesian(self, xLimit: LimitValue, yLimit: LimitValue, zLimit: LimitValue) -> Reply:
+        self.settings = self.settings.with_soft_limit_cartesian(xLimit, yLimit, zLimit)
+        return ok()
+
+    def getBaseOffset(self) -> Reply:
+        return ok(offset=self.settings.base_offset)
+
+    def setBaseOffset(self, offset: HgMatrix) -> Reply:
+        self.settings = self.settings.with_base_offset(offset)
+        return ok()
+
+    def setControlPointOffset(self, offset: HgMatrix) -> Reply:
+        self.settings = self.settings.with_control_point_offset(offset)
+        return ok()
+
+    # -- home -------------------------------------------------------------------------------
+    def getHome(self) -> Reply:
+        return ok(jointPoint=self.settings.home)
+
+    def setHome(self, jointPoint: JointPos) -> Reply:
+        """Within the servo's current joint soft limits."""
+        core = self.core
+        self.settings.check_joint_points("jointPoint", jointPoint)
+        with core.serial:  # no setSoftLimitJoint in between the check and the change
+            limits = core.servo.call(OP.getSoftLimitJoint)
+            if not limits.ok:
+                return refuse(ReturnCode.NG, f"{OP.setHome} refused: joint soft limits unavailable: "
+                              f"{limits.comment}")
+            self.settings = self.settings.with_home(jointPoint, limits["softLimit"])
+            return ok()

@@ -1,0 +1,88 @@
+"""The thread that feeds the state tracker from the servo, the planner and its liveliness.
+
+Zenoh only fills channels (RingChannel for the servo status, where the newest
+value is what counts; FifoChannel for planner progress and liveliness, where
+every change counts); this one thread drains them every ``POLL_PERIOD`` and
+also notices a servo that fell silent, which no message would announce.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+import zenoh
+
+from jara_arm.schema import codec, messages
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.planner import PLANNER_PROGRESS
+
+from .state import StateTracker
+
+log = logging.getLogger(__name__)
+
+POLL_PERIOD = 0.005  #: [s] between two drains: bounds the delay of a state change
+_STATUS_RING = 8  #: Servo/status messages kept between drains (100 Hz: two drains' worth and more)
+_PROGRESS_FIFO = 1024  #: Planner/progress messages kept between drains
+
+
+class Watcher:
+    """Subscribes to ``Servo/status``, ``Planner/progress`` and the planner's liveliness."""
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker) -> None:
+        self._tracker = tracker
+        self._status = session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(_STATUS_RING))
+        self._progress = session.declare_subscriber(keys.planner_progress,
+                                                    zenoh.handlers.FifoChannel(_PROGRESS_FIFO))
+        self._planner = session.liveliness().declare_subscriber(
+            keys.alive(Service.PLANNER), zenoh.handlers.FifoChannel(64), history=True)
+        self._stop = threading.Event()
+        self._bad = 0  # malformed messages seen (logged once per kind)
+        self._thread = threading.Thread(target=self._run, name="command-watch", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        for sub in (self._status, self._progress, self._planner):
+            try:
+                sub.undeclare()
+            except Exception:
+                pass
+
+    def _run(self) -> None:
+        while not self._stop.wait(POLL_PERIOD):
+            self.drain()
+
+    def drain(self) -> None:
+        """Everything that arrived since the last drain, in order, then the staleness check."""
+        while (s := self._planner.try_recv()) is not None:
+            if s.kind == zenoh.SampleKind.DELETE:
+                log.warning("the planner service is gone: its queue is discarded")
+                self._tracker.on_planner_gone()
+            else:
+                log.info("the planner service is up")
+                self._tracker.on_planner_up()
+        while (s := self._progress.try_recv()) is not None:
+            try:
+                self._tracker.on_progress(codec.decode_message(PLANNER_PROGRESS, s.payload.to_bytes()))
+            except WireError as exc:
+                self._malformed("Planner/progress", exc)
+        while (s := self._status.try_recv()) is not None:
+            try:
+                self._tracker.on_status(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
+            except WireError as exc:
+                self._malformed("Servo/status", exc)
+        self._tracker.tick()
+
+    def _malformed(self, what: str, exc: WireError) -> None:
+        self._bad += 1
+        if self._bad in (1, 10, 100, 1000) or self._bad % 10000 == 0:
+            log.error("ignored a malformed %s message (%d so far): %s", what, self._bad, exc)

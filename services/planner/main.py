@@ -1,0 +1,207 @@
+"""The planner service (middle level): plans motions, queues them, streams them to the servo.
+
+``python -m jara_arm.services.planner --arm arm0 --robot iiwa --connect tcp/127.0.0.1:7447``
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+import time
+from collections.abc import Callable
+
+import zenoh
+
+from jara_arm.robots import RobotModel
+from jara_arm.schema import codec, messages
+from jara_arm.schema.codec import Encoding
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.planner import (
+    CONTROL_REQUEST,
+    MOTION_REQUEST,
+    PLAN_REPLY,
+    PLANNER_PROGRESS,
+    ControlAction,
+    PlannerProgress,
+    PlanReply,
+)
+from jara_arm.services.runtime.service import announce, run_service, service_session
+
+from .planning import MotionPlanner, PlanRefused
+from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, Streamer
+
+log = logging.getLogger("jara_arm.planner")
+
+_ZENOH_ENCODING = {Encoding.JSON: zenoh.Encoding.APPLICATION_JSON,
+                   Encoding.MSGPACK: zenoh.Encoding("application/msgpack")}
+_CHANNEL_CAPACITY = 256
+#: Times a motion is re-planned when a stop or abort moved the queue's end while it was planned.
+_REPLAN = 3
+#: Other threads hand the GIL to the streamer this often [s] (Python's default is 5 ms).
+GIL_SWITCH_INTERVAL = 0.0005
+
+
+def _reply(query: zenoh.Query, body: bytes, encoding: Encoding) -> None:
+    query.reply(query.key_expr, body, encoding=_ZENOH_ENCODING[encoding])
+
+
+def _worker(queryable: zenoh.Queryable, handle: Callable[[zenoh.Query], None], name: str) -> threading.Thread:
+    """A thread answering the queries of ``queryable`` one at a time, in order."""
+
+    def serve() -> None:
+        while True:
+            try:
+                query = queryable.recv()
+            except Exception:  # undeclared: shutting down
+                return
+            try:
+                handle(query)
+            except Exception:
+                log.exception("could not answer %s", query.key_expr)
+            finally:
+                query.drop()
+
+    thread = threading.Thread(target=serve, name=name, daemon=True)
+    thread.start()
+    return thread
+
+
+class PlannerService:
+    """``Planner/plan`` and ``Planner/control`` queryables, the status watch and the streamer."""
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, model: RobotModel, lead: float,
+                 realtime_priority: int) -> None:
+        self.model = model
+        self.planner = MotionPlanner(model)  # used by the plan worker only
+        # Every command counts (SyncFIFO): block rather than drop when the link is congested.
+        self._cmd_pub = session.declare_publisher(keys.pos_cmd, express=True,
+                                                  congestion_control=zenoh.CongestionControl.BLOCK,
+                                                  priority=zenoh.Priority.REAL_TIME)
+        self._progress_pub = session.declare_publisher(keys.planner_progress, express=True)
+        self._status_sub = session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(1))
+        self.streamer = Streamer(model.dof, model.cmd_cycle, self._cmd_pub.put, self._put_progress,
+                                 self._poll_status, lead=lead, realtime_priority=realtime_priority)
+        self.streamer.start()
+        self._plan_q = session.declare_queryable(keys.planner_plan,
+                                                 zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
+        self._control_q = session.declare_queryable(keys.planner_control,
+                                                    zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
+        # Planning may take a while: control queries have a thread of their own.
+        self._threads = [_worker(self._plan_q, self._answer_plan, "planner-plan"),
+                         _worker(self._control_q, self._answer_control, "planner-control")]
+
+    # ------------------------------------------------------------------ servo status
+
+    def _poll_status(self) -> messages.ServoStatus | None:
+        sample = self._status_sub.try_recv()
+        if sample is None:
+            return None
+        try:
+            return codec.decode_message(messages.SERVO_STATUS, sample.payload.to_bytes())
+        except WireError as exc:
+            log.warning("ignored a malformed servo status: %s", exc)
+            return None
+
+    def _put_progress(self, progress: PlannerProgress) -> None:
+        self._progress_pub.put(codec.encode_message(PLANNER_PROGRESS, progress))
+
+    # ------------------------------------------------------------------ queries
+
+    def _answer_plan(self, query: zenoh.Query) -> None:
+        encoding = Encoding.of(query.encoding)
+        reply = self.plan(query.payload.to_bytes() if query.payload is not None else b"", encoding)
+        _reply(query, codec.encode_message(PLAN_REPLY, reply, encoding), encoding)
+
+    def plan(self, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> PlanReply:
+        """Decode, plan and queue one motion; the reply says OK or why not."""
+        try:
+            req = codec.decode_message(MOTION_REQUEST, payload, encoding)
+        except WireError as exc:
+            log.info("motion request refused: %s", exc)
+            return PlanReply(ReturnCode.VALUE_ERR, str(exc), (), 0.0)
+        for _ in range(_REPLAN):
+            try:
+                start, generation = self.streamer.start_point()
+                t0 = time.perf_counter()
+                motion = self.planner.plan(req, start)
+            except PlanRefused as exc:
+                log.info("motion %d %s refused (%s): %s", req.motion, req.op, exc.code.name, exc.comment)
+                return PlanReply(int(exc.code), exc.comment, (), 0.0)
+            if self.streamer.submit(motion, generation):
+                log.info("motion %d %s accepted: %.3f s long, planned in %.0f ms", req.motion, req.op,
+                         motion.duration, (time.perf_counter() - t0) * 1e3)
+                return PlanReply(int(ReturnCode.OK), "OK", tuple(motion.end.tolist()), motion.duration)
+            log.info("motion %d %s: the queue was stopped while planning; planning again",
+                     req.motion, req.op)
+        return PlanReply(int(ReturnCode.STATUS_ERR), "the queue kept being stopped while planning", (), 0.0)
+
+    def _answer_control(self, query: zenoh.Query) -> None:
+        encoding = Encoding.of(query.encoding)
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        try:
+            req = codec.decode_message(CONTROL_REQUEST, payload, encoding)
+            action = ControlAction(req.action)
+        except WireError as exc:
+            code, comment = ReturnCode.VALUE_ERR, str(exc)
+        except ValueError:
+            code, comment = ReturnCode.VALUE_ERR, (f"action: unknown {req.action!r}; valid: "
+                                                  + ", ".join(a.value for a in ControlAction))
+        else:
+            code, comment = self.streamer.control(action)
+        _reply(query, codec.dumps({"id": int(code), "comment": comment}, encoding), encoding)
+
+    # ------------------------------------------------------------------ life cycle
+
+    @property
+    def alive(self) -> bool:
+        return self.streamer.alive
+
+    def close(self) -> None:
+        for entity in (self._plan_q, self._control_q):
+            try:
+                entity.undeclare()
+            except Exception:
+                pass
+        for t in self._threads:
+            t.join(timeout=0.2)
+        self.streamer.close()
+        for entity in (self._status_sub, self._cmd_pub, self._progress_pub):
+            try:
+                entity.undeclare()
+            except Exception:
+                pass
+
+
+def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
+         lead_ms: float = DEFAULT_LEAD * 1e3, realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL)
+    with service_session(conf, arm, Service.PLANNER) as (session, keys):
+        service = PlannerService(session, keys, robot, lead_ms * 1e-3, realtime_priority)
+        token = announce(session, keys, Service.PLANNER)
+        log.info("planner up: arm %s, robot %s (%d axes%s), lead %.0f ms", arm, robot.name,
+                 robot.axis_num, " + gripper" if robot.has_gripper else "", lead_ms)
+        try:
+            while not stop.wait(0.2):
+                if not service.alive:
+                    raise RuntimeError("the streamer thread died")
+        finally:
+            token.undeclare()
+            service.close()
+            log.info("planner down")
+
+
+def _options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--lead-ms", type=float, default=DEFAULT_LEAD * 1e3, metavar="MS",
+                        help="position commands kept ahead of the servo [ms]: the pause/stop latency "
+                        f"(default: {DEFAULT_LEAD * 1e3:.0f})")
+    parser.add_argument("--realtime-priority", type=int, default=DEFAULT_RT_PRIORITY, metavar="N",
+                        help="SCHED_FIFO priority of the streamer thread, 1..99; 0 for normal "
+                        f"scheduling (default: {DEFAULT_RT_PRIORITY})")
+
+
+def run(argv: list[str] | None = None) -> int:
+    return run_service(Service.PLANNER, __doc__.splitlines()[0], main, argv, _options)

@@ -1,0 +1,411 @@
+"""Turn one ``MotionRequest`` and its start joints into a sampled joint trajectory.
+
+Every geometric check of DECISIONS.md "Motion commands" happens here, before a
+motion is accepted; a refusal raises :class:`PlanRefused` with the return code
+and a comment saying why, and nothing is queued.
+
+Frames (DECISIONS.md "Frames"): Cartesian commands are in the robot frame.
+With the base offset ``B`` (robot frame seen from the arm frame) a robot-frame
+pose ``T`` is ``B · T`` in the arm frame, where kinematics works; the
+controlled pose is ``T_flange · C`` (``C``: control point offset).
+
+Motions, all timed by one profile along one path (``profile.py``):
+
+* PTP (joint, Cartesian, goHome): a joint-space line, speed ``spdRatioJoint``
+  x ``maxSpeedJoint`` synchronised to the slowest axis, ``accelTimeJoint``.
+  A Cartesian target is solved by IK nearest to the start joints.
+* LIN / CIRC: a Cartesian line or arc of the control point, speed
+  ``spdRatioCartesian`` x ``maxSpeedCartesian`` (the slower of translation and
+  rotation sets it), ``accelTimeCartesian``; IK at every servo period,
+  warm-started from the previous sample. If the joint speeds that this implies
+  exceed ``maxSpeedJoint``, the whole profile is slowed down (same accel time)
+  until they do not; refused only when even the lowest speed ratio (1 %) is
+  too fast (a singularity or a posture change on the path).
+* Gripper: the gripper axis alone, at the model's gripper speed with
+  ``accelTimeJoint``; the arm holds.
+
+Joint speed limits are ``maxSpeedJoint`` capped at the model's rated speeds
+(the servo refuses anything faster as an overspeed fault).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from jara_arm.robots import RobotModel
+from jara_arm.schema import codec
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.errors import JaraArmError, WireError
+from jara_arm.schema.operations import MIDDLE, OP
+from jara_arm.schema.planner import MotionRequest, MotionSettings
+from jara_arm.schema.types import CarPosWithElbow
+
+from . import families
+from .families import CartesianKind, CartesianRule, Orientation
+from .kinematics import Kinematics, KinematicsError, arm_to_robot, hg_to_se3
+from .paths import CartesianArc, CartesianLine, PathGeometryError
+from .profile import (
+    PathMotion,
+    ProfileError,
+    ProfileLimits,
+    cartesian_path_speed,
+    move_profile,
+    plan_joint_ptp,
+)
+from .trajectory import Joints, LineMap, PlannedMotion, TableMap
+
+#: IK tolerance along LIN / CIRC paths and for PTP-Cartesian targets [m] and [rad]:
+#: tight enough that every planned point lies within 1e-6 m of the ideal path.
+IK_TOLERANCE = 1e-7
+#: Newton iterations per path sample: a warm start needs 1-3; more means the path left the workspace.
+IK_SAMPLE_ITERATIONS = 60
+#: Lowest speed ratio a LIN / CIRC may be slowed down to for the joint speed limits [-].
+LOWEST_SPEED_RATIO = 0.01
+#: Slowing down for joint speed aims this far below the limit [-].
+JOINT_SPEED_MARGIN = 0.97
+#: Rounds of slowing down before giving up (each one re-solves IK along the path).
+SLOWDOWN_ROUNDS = 4
+
+
+class PlanRefused(JaraArmError):
+    """A motion that is not queued: ``code`` and ``comment`` go back to the client."""
+
+    def __init__(self, code: ReturnCode, comment: str) -> None:
+        super().__init__(comment)
+        self.code = code
+        self.comment = comment
+
+
+@dataclasses.dataclass(frozen=True)
+class _Frames:
+    """The settings' frames as 4x4 matrices."""
+
+    base: NDArray[np.float64]  # B: robot frame seen from the arm frame
+    base_inv: NDArray[np.float64]
+    tool: NDArray[np.float64]  # C: control point in the flange frame
+
+
+def _frames(settings: MotionSettings, *, planar: bool = False) -> _Frames:
+    base = np.eye(4) if planar else hg_to_se3(settings.baseOffset)
+    return _Frames(base, np.linalg.inv(base), hg_to_se3(settings.controlPointOffset))
+
+
+def _yaw_only(r_delta: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The rotation about Z nearest to ``r_delta`` (3x3)."""
+    psi = math.atan2(r_delta[1, 0] - r_delta[0, 1], r_delta[0, 0] + r_delta[1, 1])
+    c, s = math.cos(psi), math.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+class MotionPlanner:
+    """Plans motions for one robot model. Not thread-safe: one instance per planning thread."""
+
+    def __init__(self, model: RobotModel, kinematics: Kinematics | None = None) -> None:
+        self.model = model
+        self.kin = kinematics or Kinematics(model)
+        self.n = model.axis_num
+        self.dt = model.cmd_cycle
+        self._rated = np.array(model.rated_speed)
+
+    # ------------------------------------------------------------------ entry
+
+    def plan(self, req: MotionRequest, start: Joints) -> PlannedMotion:
+        """The motion ``req`` from ``start`` (wire joints); raises PlanRefused."""
+        op = MIDDLE.get(req.op)
+        if op is None or not op.motion:
+            raise PlanRefused(ReturnCode.NOT_IMPLEMENTED, f"{req.op!r} is not a motion operation")
+        start = np.array(start, dtype=float)
+        if start.shape != (self.model.dof,):
+            raise PlanRefused(ReturnCode.STATUS_ERR, f"start joints have {start.size} axes, "
+                              f"the robot {self.model.dof}")
+        try:
+            args = codec.decode_request(op, codec.dumps(req.args))
+            self._check_settings(req.settings)
+            return self._dispatch(req, op.name, args, start)
+        except WireError as exc:
+            raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
+        except (PathGeometryError, ProfileError, KinematicsError) as exc:
+            raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {exc}") from None
+
+    def _dispatch(self, req: MotionRequest, name: str, args: dict, start: Joints) -> PlannedMotion:
+        s, n = req.settings, self.n
+        if name == OP.movePTPJointAbs:
+            return self._joint_ptp(req, start, self._joint_arg(args["jointPoints"]))
+        if name == OP.movePTPJointRel:
+            return self._joint_ptp(req, start, start[:n] + self._joint_arg(args["jointPoints"]))
+        if name == OP.goHome:
+            return self._joint_ptp(req, start, np.array(s.home, dtype=float), "home")
+        if name in (OP.movePTPCartesianAbs, OP.movePTPCartesianRel):
+            return self._ptp_cartesian(req, start, args["carPoint"], name == OP.movePTPCartesianRel)
+        if name in (OP.moveLinearCartesianAbs, OP.moveLinearCartesianRel):
+            return self._linear(req, start, args["carPoint"], name == OP.moveLinearCartesianRel)
+        if name in (OP.moveCircularCartesianAbs, OP.moveCircularCartesianRel):
+            return self._circular(req, start, args["carPointR"], args["carPointT"],
+                                  name == OP.moveCircularCartesianRel)
+        if name == OP.moveGripper:
+            return self._gripper(req, start, args["angleRatio"])
+        if name == OP.openGripper:
+            return self._gripper(req, start, 100)
+        if name == OP.closeGripper:
+            return self._gripper(req, start, 0)
+        raise PlanRefused(ReturnCode.NOT_IMPLEMENTED, f"{name} is not planned by this planner")
+
+    # ------------------------------------------------------------------ checks
+
+    def _check_settings(self, s: MotionSettings) -> None:
+        n = self.n
+        for field, value, size in (("maxSpeedJoint", s.maxSpeedJoint, n),
+                                   ("softLimitJoint", s.softLimitJoint, n),
+                                   ("softLimitCartesian", s.softLimitCartesian, 3), ("home", s.home, n)):
+            if len(value) != size:
+                raise WireError(f"settings.{field}", f"expected {size} entries, got {len(value)}")
+        if any(v <= 0.0 for v in s.maxSpeedJoint):
+            raise WireError("settings.maxSpeedJoint", "every max speed must be positive")
+        if s.maxSpeedCartesian.translation <= 0.0 or s.maxSpeedCartesian.rotation <= 0.0:
+            raise WireError("settings.maxSpeedCartesian", "max speeds must be positive")
+        for field in ("accelTimeJoint", "accelTimeCartesian"):
+            if getattr(s, field) <= 0.0:
+                raise WireError(f"settings.{field}", "acceleration time must be positive")
+        for field in ("spdRatioJoint", "spdRatioCartesian"):
+            if getattr(s, field) > 100:
+                raise WireError(f"settings.{field}", "speed ratio above 100 %")
+
+    def _joint_arg(self, points: tuple[float, ...]) -> Joints:
+        if len(points) != self.n:
+            raise WireError("jointPoints", f"expected {self.n} values (one per arm axis, gripper "
+                            f"excluded), got {len(points)}")
+        return np.array(points, dtype=float)
+
+    def _soft_limits(self, s: MotionSettings) -> tuple[Joints, Joints]:
+        """Joint soft limits, clamped into the hard limits (IK insists on that)."""
+        lo = np.maximum([lim.lower for lim in s.softLimitJoint], self.kin.lower)
+        hi = np.minimum([lim.upper for lim in s.softLimitJoint], self.kin.upper)
+        return lo, hi
+
+    def _check_joint_target(self, s: MotionSettings, target: Joints, what: str) -> None:
+        for i, (q, lim) in enumerate(zip(target, s.softLimitJoint)):
+            if not lim.lower <= q <= lim.upper:
+                raise PlanRefused(ReturnCode.VALUE_ERR,
+                                  f"{what}: J{i + 1} = {q:.6g} is outside its joint soft limit "
+                                  f"[{lim.lower:.6g}, {lim.upper:.6g}]")
+
+    @staticmethod
+    def _check_box(s: MotionSettings, positions: NDArray[np.float64], what: str) -> None:
+        """Refuse if any control-point position (N, 3) [m, robot frame] leaves the Cartesian soft limits."""
+        lo = np.array([lim.lower for lim in s.softLimitCartesian])
+        hi = np.array([lim.upper for lim in s.softLimitCartesian])
+        bad = np.flatnonzero(np.any((positions < lo) | (positions > hi), axis=1))
+        if bad.size:
+            k = int(bad[0])
+            p = positions[k]
+            axis = int(np.flatnonzero((p < lo) | (p > hi))[0])
+            where = "target" if k == len(positions) - 1 else f"path at {100.0 * k / max(1, len(positions) - 1):.0f} %"
+            raise PlanRefused(ReturnCode.VALUE_ERR,
+                              f"{what}: the control point leaves the Cartesian soft limits ({where}): "
+                              f"{'xyz'[axis]} = {p[axis]:.6g} m outside [{lo[axis]:.6g}, {hi[axis]:.6g}] "
+                              f"(robot frame)")
+
+    def _vmax(self, s: MotionSettings) -> Joints:
+        """Joint speed limits of the wire axes [rad/s or m/s]: settings capped at the rated speeds."""
+        v = np.minimum(np.array(s.maxSpeedJoint, dtype=float), self._rated)
+        if self.model.has_gripper:
+            v = np.append(v, self.model.gripper_speed)
+        return v
+
+    # ------------------------------------------------------------------ poses
+
+    def control_pose(self, q_arm: Joints, frames: _Frames) -> NDArray[np.float64]:
+        """Control point pose (4x4) in the robot frame at arm joints ``q_arm``."""
+        return frames.base_inv @ self.kin.control_point(q_arm, frames.tool)
+
+    def _path_box(self, s: MotionSettings, q: Joints, frames: _Frames, what: str) -> None:
+        """Cartesian soft-limit check of a joint-space path, at every sample."""
+        if np.all(q[0, :self.n] == q[-1, :self.n]):
+            return  # the arm does not move (gripper only, or already there)
+        kin, tool = self.kin, frames.tool
+        pts = np.array([kin.control_point(qa, tool)[:3, 3] for qa in q[:, :self.n]])
+        pts = pts @ frames.base_inv[:3, :3].T + frames.base_inv[:3, 3]
+        self._check_box(s, pts, what)
+
+    def _target(self, cp: CarPosWithElbow, start_pose: NDArray[np.float64], relative: bool,
+                rule: CartesianRule) -> NDArray[np.float64]:
+        """The commanded pose (4x4, robot frame; arm frame for ``planar``) after the family rule."""
+        cmd = hg_to_se3(cp.carPos)
+        r0, p0 = start_pose[:3, :3], start_pose[:3, 3]
+        T = np.eye(4)
+        if relative:
+            T[:3, 3] = p0 + cmd[:3, 3]
+            T[:3, :3] = cmd[:3, :3] @ r0
+        else:
+            T[:] = cmd
+        if rule.orientation is Orientation.KEEP:
+            T[:3, :3] = r0
+        elif rule.orientation is Orientation.YAW:
+            T[:3, :3] = _yaw_only(T[:3, :3] @ r0.T) @ r0
+        if rule.planar:
+            T[2, 3] = p0[2]
+        return T
+
+    def _elbow_target(self, cp: CarPosWithElbow, start: Joints, relative: bool,
+                      rule: CartesianRule) -> tuple[float | None, float | None]:
+        """(start, target) arm angle [rad] of a 7-axis arm, (None, None) when not commanded.
+
+        A relative command adds its ``elbow`` to the start arm angle.
+        """
+        if not (rule.elbow and self.kin.has_elbow):
+            return None, None
+        e0 = self.kin.elbow_angle(start[:self.n])
+        e1 = e0 + cp.elbow if relative else cp.elbow
+        return e0, e0 + math.remainder(e1 - e0, 2.0 * math.pi)
+
+    def _rule(self, kind: CartesianKind, op: str) -> CartesianRule:
+        r = families.rule(self.model, kind)
+        if isinstance(r, families.Refused):
+            raise PlanRefused(ReturnCode.NG, f"{op}: {r.why}")
+        return r
+
+    # ------------------------------------------------------------------ motions
+
+    def _motion(self, req: MotionRequest, motion: PathMotion) -> PlannedMotion:
+        samples, q = motion.sample(self.dt)
+        return PlannedMotion(req.motion, req.op, LineMap(motion.path), motion.profile, q, self.dt)
+
+    def _joint_ptp(self, req: MotionRequest, start: Joints, target: Joints,
+                   what: str = "target") -> PlannedMotion:
+        s = req.settings
+        self._check_joint_target(s, target, f"{req.op} {what}")
+        if s.spdRatioJoint == 0:
+            raise PlanRefused(ReturnCode.STATUS_ERR, "joint speed ratio is 0 %: call setSpeedJoint first")
+        q1 = start.copy()
+        q1[:self.n] = target
+        planned = self._motion(req, plan_joint_ptp(start, q1, self._vmax(s), s.spdRatioJoint / 100.0,
+                                                   s.accelTimeJoint))
+        self._path_box(s, planned.q, _frames(s), req.op)
+        return planned
+
+    def _ptp_cartesian(self, req: MotionRequest, start: Joints, cp: CarPosWithElbow,
+                       relative: bool) -> PlannedMotion:
+        s = req.settings
+        rule = self._rule(CartesianKind.LINEAR, req.op)
+        frames = _frames(s, planar=rule.planar)
+        T1 = self._target(cp, self.control_pose(start[:self.n], frames), relative, rule)
+        self._check_box(s, T1[None, :3, 3], req.op)
+        _, elbow = self._elbow_target(cp, start, relative, rule)
+        lo, hi = self._soft_limits(s)
+        res = self.kin.ik(frames.base @ T1, start[:self.n], tool=frames.tool, elbow=elbow,
+                          mask=rule.mask, tol_pos=IK_TOLERANCE, tol_rot=IK_TOLERANCE, lower=lo, upper=hi)
+        if not res.success:
+            raise PlanRefused(ReturnCode.VALUE_ERR,
+                              f"{req.op}: target pose unreachable within the joint soft limits "
+                              f"(best IK residual {res.pos_err:.3g} m, {res.rot_err:.3g} rad"
+                              + (f", arm angle {res.elbow_err:.3g} rad)" if elbow is not None else ")"))
+        return self._joint_ptp(req, start, res.q)
+
+    def _linear(self, req: MotionRequest, start: Joints, cp: CarPosWithElbow,
+                relative: bool) -> PlannedMotion:
+        rule = self._rule(CartesianKind.LINEAR, req.op)
+        frames = _frames(req.settings, planar=rule.planar)
+        T0 = self.control_pose(start[:self.n], frames)
+        T1 = self._target(cp, T0, relative, rule)
+        elbows = self._elbow_target(cp, start, relative, rule)
+        return self._cartesian(req, start, CartesianLine(T0, T1), rule, frames, elbows)
+
+    def _circular(self, req: MotionRequest, start: Joints, via: CarPosWithElbow, cp: CarPosWithElbow,
+                  relative: bool) -> PlannedMotion:
+        rule = self._rule(CartesianKind.CIRCULAR, req.op)
+        frames = _frames(req.settings, planar=rule.planar)
+        T0 = self.control_pose(start[:self.n], frames)
+        T1 = self._target(cp, T0, relative, rule)
+        Tv = self._target(via, T0, relative, rule)  # its orientation is ignored (DECISIONS.md)
+        elbows = self._elbow_target(cp, start, relative, rule)
+        try:
+            arc = CartesianArc(T0, Tv[:3, 3], T1)
+        except PathGeometryError as exc:
+            raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {exc}") from None
+        return self._cartesian(req, start, arc, rule, frames, elbows)
+
+    def _cartesian(self, req: MotionRequest, start: Joints, path: CartesianLine | CartesianArc,
+                   rule: CartesianRule, frames: _Frames,
+                   elbows: tuple[float | None, float | None]) -> PlannedMotion:
+        """LIN / CIRC: profile, box check, IK at every sample, joint speed check (slowing down)."""
+        s = req.settings
+        if s.spdRatioCartesian == 0:
+            raise PlanRefused(ReturnCode.STATUS_ERR,
+                              "Cartesian speed ratio is 0 %: call setSpeedCartesian first")
+        vt, vr = s.maxSpeedCartesian.translation, s.maxSpeedCartesian.rotation
+        speed = cartesian_path_speed(path, vt, vr, s.spdRatioCartesian / 100.0)
+        if math.isinf(speed):  # the target is the start pose: nothing to do
+            profile = move_profile(path.length, ProfileLimits(math.inf, math.inf, math.inf), path.length)
+            return PlannedMotion(req.motion, req.op, TableMap.build(np.zeros(1), start[None, :]),
+                                 profile, start[None, :].copy(), self.dt)
+        lowest = cartesian_path_speed(path, vt, vr, LOWEST_SPEED_RATIO)
+        vmax = self._vmax(s)[:self.n]
+        lo, hi = self._soft_limits(s)
+        checked_box = False
+        for _ in range(SLOWDOWN_ROUNDS):
+            profile = move_profile(path.length, ProfileLimits.from_accel_time(speed, s.accelTimeCartesian))
+            samples = profile.sample(self.dt)
+            poses = path.sample(samples.s)
+            if not checked_box:
+                pts = poses[:, :3, 3]
+                if rule.planar:  # the points are in the arm frame: the limits are in the robot frame
+                    pts = pts @ frames.base_inv[:3, :3].T + frames.base_inv[:3, 3]
+                self._check_box(s, pts, req.op)
+                checked_box = True
+            q = self._solve_path(req.op, start, frames, poses, samples.s / path.length, rule, elbows, lo, hi)
+            over = np.abs(np.diff(q[:, :self.n], axis=0)) / self.dt / vmax  # [-] joint speed / max
+            worst = float(over.max()) if over.size else 0.0
+            if worst <= 1.0:
+                return PlannedMotion(req.motion, req.op, TableMap.build(samples.s, q), profile, q, self.dt)
+            new_speed = speed * JOINT_SPEED_MARGIN / worst
+            if new_speed < lowest:
+                k, i = np.unravel_index(int(over.argmax()), over.shape)
+                raise PlanRefused(
+                    ReturnCode.VALUE_ERR,
+                    f"{req.op}: at {100.0 * samples.s[k] / path.length:.0f} % of the path J{i + 1} would "
+                    f"exceed its max speed {vmax[i]:.3g} even at the lowest speed "
+                    f"({100 * LOWEST_SPEED_RATIO:.0f} %): a singularity or a posture change lies on the path")
+            speed = new_speed
+        raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: could not keep the joint speeds within "
+                          f"maxSpeedJoint along the path")
+
+    def _solve_path(self, op: str, start: Joints, frames: _Frames, poses: NDArray[np.float64],
+                    u: NDArray[np.float64], rule: CartesianRule,
+                    elbows: tuple[float | None, float | None], lo: Joints, hi: Joints) -> Joints:
+        """Joints (N, dof) at robot-frame poses (N, 4, 4), warm-started sample to sample."""
+        n, kin, tool, mask = self.n, self.kin, frames.tool, rule.mask
+        e0, e1 = elbows
+        targets = np.einsum("ij,njk->nik", frames.base, poses)
+        q = np.repeat(start[None, :], len(poses), axis=0)  # gripper column kept as it is
+        prev = start[:n]
+        for k in range(1, len(poses)):
+            elbow = None if e0 is None else e0 + u[k] * (e1 - e0)
+            res = kin.ik(targets[k], prev, tool=tool, elbow=elbow, mask=mask, tol_pos=IK_TOLERANCE,
+                         tol_rot=IK_TOLERANCE, max_iter=IK_SAMPLE_ITERATIONS, lower=lo, upper=hi)
+            if not res.success:
+                p = poses[k, :3, 3]
+                raise PlanRefused(ReturnCode.VALUE_ERR,
+                                  f"{op}: unreachable at {100.0 * u[k]:.0f} % of the path (control point "
+                                  f"at [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}] m): no IK solution within the "
+                                  f"joint soft limits")
+            prev = res.q
+            q[k, :n] = prev
+        return q
+
+    def _gripper(self, req: MotionRequest, start: Joints, ratio: int) -> PlannedMotion:
+        lim = self.model.gripper_limits
+        if lim is None:
+            raise PlanRefused(ReturnCode.NG, f"{req.op}: this robot has no gripper")
+        if ratio > 100:
+            raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: angleRatio {ratio} % is above 100 %")
+        q1 = start.copy()
+        q1[self.n] = lim.lower + ratio / 100.0 * (lim.upper - lim.lower)
+        return self._motion(req, plan_joint_ptp(start, q1, self._vmax(req.settings), 1.0,
+                                                req.settings.accelTimeJoint))
+
+
+__all__ = ["IK_TOLERANCE", "MotionPlanner", "PlanRefused"]

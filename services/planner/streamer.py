@@ -1,0 +1,444 @@
+"""The execution engine: queued motions -> ``Servo/posCmd``, with pause, resume, stop, abort.
+
+One thread (:meth:`Streamer.run`) publishes the samples of the queued motions,
+in order, keeping a small lead over the servo: about ``lead`` seconds of
+commands wait in the servo's SyncFIFO (:class:`FifoEstimate`), enough that the
+FIFO never runs dry while moving and little enough that a pause or stop takes
+effect within ``lead`` plus one cycle of its reply.
+
+* Motions follow each other with no gap: each one ends at rest, and the next
+  one's first sample (its start, equal to the previous end) is skipped.
+* ``pause``: from the state of the last sample sent, a braking profile along
+  the same path (``PathProfile.stop_at``); then nothing is sent (the servo
+  holds at rest). ``resume``: the same path from where it stopped to the same
+  end (``PathProfile.resume``). Commands accepted while paused are queued.
+* ``stop``: the same braking, then the whole queue is discarded.
+* ``abort`` (and the servo going off, raising an alarm, or running dry during a
+  motion): nothing more is sent; everything is discarded.
+
+Control calls compute the braking profile and install it before they return,
+so their reply means "the deceleration is queued for sending".
+
+Thread safety: every public method takes the engine's lock; only the engine
+thread publishes.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import enum
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from jara_arm.schema import codec
+from jara_arm.schema import wire_types as w
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.messages import ServoStatus
+from jara_arm.schema.planner import ControlAction, PlannerProgress
+from jara_arm.schema.types import Time, TimedJointPos
+
+from .planning import PlanRefused
+from .profile import PathProfile
+from .servo_fifo import FifoEstimate
+from .trajectory import Joints, PlannedMotion
+
+log = logging.getLogger(__name__)
+
+#: Commands kept ahead of the servo [s]: the pause/stop latency, and the margin against hiccups.
+DEFAULT_LEAD = 0.012
+#: SCHED_FIFO priority of the engine thread: below the servo loop's 40 (0: normal scheduling).
+DEFAULT_RT_PRIORITY = 30
+#: Without a servo status for this long while streaming, the servo is taken as gone [s].
+STATUS_TIMEOUT = 0.5
+#: A motion starting from rest must start within this of the servo's held target [rad or m].
+START_TOLERANCE = 1e-4
+#: After the last command is due, the servo's status is trusted for the start joints after this [s].
+SETTLE = 0.03
+PROGRESS_PERIOD = 0.1  # [s] progress is published at least this often
+_IDLE_WAIT = 0.005  # [s] engine period while there is nothing to send
+
+
+class _Kind(enum.Enum):
+    RUN = "run"  # a motion, nominal or resumed
+    PAUSE = "pause"  # braking along the path, then hold (resumable)
+    STOP = "stop"  # braking along the path of a discarded motion
+
+
+@dataclasses.dataclass
+class _Segment:
+    """A profile on a motion's path being sent; sample 0 is the state already commanded."""
+
+    motion: PlannedMotion
+    profile: PathProfile
+    q: Joints  # (N, dof) joints at the profile's samples
+    kind: _Kind
+    k: int = 1  # next sample to send
+    resume_after: bool = False  # PAUSE: resume as soon as the braking ends
+
+    @property
+    def last_sent_time(self) -> float:
+        """[s] time on ``profile`` of the last sample sent."""
+        return (self.k - 1) * self.motion.dt
+
+    def brake(self, kind: _Kind) -> _Segment:
+        """Braking along the path from the state of the last sample sent."""
+        profile = self.profile.stop_at(self.last_sent_time)
+        return _Segment(self.motion, profile, self.motion.joints_along(profile), kind)
+
+    def resumed(self) -> _Segment:
+        """From rest where this segment ended to the end of the path."""
+        profile = self.profile.resume()
+        return _Segment(self.motion, profile, self.motion.joints_along(profile), _Kind.RUN)
+
+
+def _realtime(priority: int) -> None:
+    """SCHED_FIFO for the calling thread if allowed; silently normal scheduling otherwise."""
+    if priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            log.info("streamer runs with SCHED_FIFO priority %d", priority)
+        except (OSError, AttributeError):
+            pass
+
+
+class Streamer:
+    """Queue and stream planned motions to the servo (see module docstring)."""
+
+    def __init__(self, dof: int, period: float, publish: Callable[[bytes], None],
+                 publish_progress: Callable[[PlannerProgress], None],
+                 poll_status: Callable[[], ServoStatus | None], *, lead: float = DEFAULT_LEAD,
+                 realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+        self.dof = dof
+        self.period = period  # [s] servo cycle
+        self.lead = lead  # [s]
+        self._publish = publish
+        self._publish_progress = publish_progress
+        self._poll_status = poll_status
+        self._rt_priority = realtime_priority
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop_event = threading.Event()
+        self._fifo = FifoEstimate(period)
+
+        self._queue: collections.deque[PlannedMotion] = collections.deque()
+        self._active: _Segment | None = None
+        self._held: _Segment | None = None  # paused at rest mid-path
+        self._inflight: collections.deque[tuple[int, float]] = collections.deque()  # (id, due [s])
+        self._paused = False
+        self._tail: Joints | None = None  # where the last queued motion (or braking) ends
+        self._last_sent: Joints | None = None
+        self._busy_until = 0.0  # [s] when the last command sent is due at the servo
+        self._generation = 0  # changes when the queue's end moves other than by submit()
+        self._last_done = 0
+        self._last_discarded = 0
+        self._status: ServoStatus | None = None
+        self._status_at = 0.0  # [s] arrival of the last status
+        self._underruns: int | None = None
+        self._thread = threading.Thread(target=self.run, name="planner-streamer", daemon=True)
+
+    # ------------------------------------------------------------------ life cycle
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop_event.set()
+        self._wake.set()
+        self._thread.join(timeout=2.0)
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    # ------------------------------------------------------------------ planning side
+
+    def start_point(self) -> tuple[Joints, int]:
+        """(start joints of the next motion, generation); raises PlanRefused if there is none.
+
+        The end of the last queued motion; when nothing is queued or running,
+        the servo's held target (or our own last end if the servo holds there).
+        """
+        with self._lock:
+            now = time.time()
+            st = self._status
+            if st is None or now - self._status_at > STATUS_TIMEOUT:
+                raise PlanRefused(ReturnCode.STATUS_ERR, "no status from the servo: is it running?")
+            if not st.servoOn:
+                raise PlanRefused(ReturnCode.NOT_SV_ON_ERR, "the servo is off")
+            if st.alarm:
+                raise PlanRefused(ReturnCode.STATUS_ERR, "the servo has an active alarm")
+            if self._tail is not None and not self._idle(now, SETTLE):
+                return self._tail.copy(), self._generation
+            target = np.array(st.target, dtype=float)
+            if target.shape != (self.dof,):
+                raise PlanRefused(ReturnCode.STATUS_ERR, f"the servo reports {target.size} axes, "
+                                  f"the robot has {self.dof}")
+            if self._tail is not None and np.max(np.abs(target - self._tail)) < START_TOLERANCE:
+                return self._tail.copy(), self._generation  # exactly where we left it
+            return target, self._generation
+
+    def submit(self, motion: PlannedMotion, generation: int) -> bool:
+        """Queue ``motion`` planned from ``start_point()``; False if the queue's end moved since."""
+        with self._lock:
+            if generation != self._generation:
+                return False
+            self._queue.append(motion)
+            self._tail = motion.end.copy()
+        self._wake.set()
+        return True
+
+    # ------------------------------------------------------------------ control
+
+    def control(self, action: ControlAction) -> tuple[ReturnCode, str]:
+        """Apply ``action``; returns (code, comment) once any braking is queued for sending."""
+        with self._lock:
+            now = time.time()
+            if action is ControlAction.PAUSE:
+                result = self._pause(now)
+            elif action is ControlAction.RESUME:
+                result = self._resume()
+            elif action is ControlAction.STOP:
+                result = self._stop(now)
+            else:
+                self._abort("abort requested")
+                result = "OK: motion aborted, queue discarded"
+        self._wake.set()
+        return ReturnCode.OK, result
+
+    def _pause(self, now: float) -> str:
+        if self._paused:
+            return "OK: ignored, already paused"
+        seg = self._active
+        if seg is not None and seg.kind is _Kind.STOP:
+            return "OK: ignored, stopping"
+        if seg is None and not self._queue and self._idle(now):
+            return "OK: ignored, not moving"
+        self._paused = True
+        if seg is not None:
+            self._active = seg.brake(_Kind.PAUSE)
+            log.info("pause: motion %d decelerates along its path in %.3f s", seg.motion.motion,
+                     self._active.profile.duration)
+            return f"OK: pausing, decelerating along the path in {self._active.profile.duration:.3f} s"
+        log.info("pause: between motions, %d queued", len(self._queue))
+        return "OK: paused"
+
+    def _resume(self) -> str:
+        if not self._paused:
+            return "OK: ignored, not paused"
+        self._paused = False
+        seg = self._active
+        if seg is not None and seg.kind is _Kind.PAUSE:
+            seg.resume_after = True
+            log.info("resume: motion %d continues once its deceleration ends", seg.motion.motion)
+            return "OK: resuming once the deceleration ends"
+        if self._held is not None:
+            held, self._held = self._held, None
+            self._active = held.resumed()
+            log.info("resume: motion %d continues, %.3f s to its end", held.motion.motion,
+                     self._active.profile.duration)
+            return "OK: resumed"
+        log.info("resume: %d queued motions go on", len(self._queue))
+        return "OK: resumed"
+
+    def _stop(self, now: float) -> str:
+        seg = self._active
+        if seg is None and not self._queue and self._held is None and self._idle(now):
+            return "OK: ignored, not moving"
+        discarded = [m.motion for m in self._queue]
+        if self._held is not None:
+            discarded.append(self._held.motion.motion)
+        if seg is not None and seg.kind is not _Kind.STOP:
+            discarded.append(seg.motion.motion)
+            if seg.kind is _Kind.RUN:
+                self._active = seg = seg.brake(_Kind.STOP)
+            else:  # already braking for a pause: keep braking, do not resume
+                seg.kind, seg.resume_after = _Kind.STOP, False
+        self._queue.clear()
+        self._held = None
+        self._paused = False
+        self._generation += 1
+        self._tail = seg.q[-1].copy() if seg is not None else self._last_sent
+        if discarded:
+            self._last_discarded = max(self._last_discarded, max(discarded))
+        duration = seg.profile.duration if seg is not None else 0.0
+        log.info("stop: decelerating in %.3f s; discarded motions %s", duration, discarded or "none")
+        return f"OK: stopping in {duration:.3f} s, {len(discarded)} motions discarded"
+
+    def _abort(self, why: str) -> None:
+        """Send nothing more, discard everything (lock held)."""
+        discarded = [i for i, _ in self._inflight] + [m.motion for m in self._queue]
+        if self._held is not None:
+            discarded.append(self._held.motion.motion)
+        if self._active is not None and self._active.kind is not _Kind.STOP:
+            discarded.append(self._active.motion.motion)
+        busy = bool(discarded) or self._active is not None
+        self._queue.clear()
+        self._inflight.clear()
+        self._active = self._held = None
+        self._paused = False
+        self._tail = None
+        self._generation += 1
+        self._busy_until = 0.0
+        if discarded:
+            self._last_discarded = max(self._last_discarded, max(discarded))
+        if busy:
+            log.warning("abort (%s): discarded motions %s", why, discarded or "none")
+
+    # ------------------------------------------------------------------ state
+
+    def _idle(self, now: float, settle: float = 0.0) -> bool:
+        """Nothing queued, sent or due (lock held)."""
+        return (self._active is None and self._held is None and not self._queue and not self._inflight
+                and now >= self._busy_until + settle)
+
+    def progress(self, now: float | None = None) -> PlannerProgress:
+        with self._lock:
+            return self._progress(time.time() if now is None else now)
+
+    def _progress(self, now: float) -> PlannerProgress:
+        ids = [i for i, _ in self._inflight]
+        seg = self._active
+        if seg is not None and seg.kind is not _Kind.STOP:
+            ids.append(seg.motion.motion)
+        if self._held is not None:
+            ids.append(self._held.motion.motion)
+        ids += [m.motion for m in self._queue]
+        moving = bool(self._inflight) or (seg is not None and seg.kind is not _Kind.STOP)
+        running = ids[0] if moving else 0  # 0 while paused at rest, stopping or about to start
+        streaming = seg is not None or now < self._busy_until
+        return PlannerProgress(Time.from_seconds(now), running, tuple(ids), self._last_done,
+                               self._last_discarded, self._paused, streaming)
+
+    # ------------------------------------------------------------------ engine thread
+
+    def run(self) -> None:
+        _realtime(self._rt_priority)
+        last_progress: PlannerProgress | None = None
+        last_progress_at = 0.0
+        last_now = time.time()
+        while not self._stop_event.is_set():
+            try:
+                status = self._poll_status()
+                now = time.time()
+                if now - last_now > 0.006 and self._active is not None:
+                    log.warning("DEBUG streamer gap %.1f ms depth %.1f", (now - last_now) * 1e3, self._fifo.depth(now))
+                last_now = now
+                with self._lock:
+                    if status is not None:
+                        self._on_status(status, now)
+                    elif self._has_work(now) and now - self._status_at > STATUS_TIMEOUT:
+                        self._abort(f"no status from the servo for {STATUS_TIMEOUT:.1f} s")
+                    out = self._fill(now)
+                    while self._inflight and self._inflight[0][1] <= now:
+                        self._last_done = self._inflight.popleft()[0]
+                    progress = self._progress(now)
+                    busy = self._active is not None or (self._queue and not self._paused)
+                t_pub = time.time()
+                for payload in out:
+                    self._publish(payload)
+                t_pub2 = time.time()
+                if t_pub2 - now > 0.004:
+                    log.warning("DEBUG iteration: fill %.1f ms publish %d in %.1f ms", (t_pub - now) * 1e3, len(out), (t_pub2 - t_pub) * 1e3)
+                same = (last_progress is not None
+                        and dataclasses.replace(progress, tm=last_progress.tm) == last_progress)
+                if not same or now - last_progress_at >= PROGRESS_PERIOD:
+                    self._publish_progress(progress)
+                    last_progress, last_progress_at = progress, now
+            except Exception:  # the engine must outlive a bug: log it, drop the motions, go on
+                log.exception("streamer iteration failed; aborting the queue")
+                with self._lock:
+                    self._abort("internal error")
+                busy = False
+            if busy:
+                t_sl = time.time()
+                time.sleep(self.period)
+                if time.time() - t_sl > 0.004:
+                    log.warning("DEBUG sleep took %.1f ms", (time.time() - t_sl) * 1e3)
+            else:
+                self._wake.wait(_IDLE_WAIT)
+                self._wake.clear()
+
+    def _has_work(self, now: float) -> bool:
+        return not self._idle(now)
+
+    def _on_status(self, st: ServoStatus, now: float) -> None:
+        """Track the servo: FIFO depth, and the reasons to abort (lock held)."""
+        self._status, self._status_at = st, now
+        self._fifo.report(st.fifoDepth, st.tm.to_seconds(), now)
+        moving = self._active is not None or bool(self._inflight) or now < self._busy_until
+        if not st.servoOn and self._has_work(now):
+            self._abort("the servo is off")
+        elif st.alarm and self._has_work(now):
+            self._abort("the servo raised an alarm")
+        elif self._underruns is not None and st.underruns > self._underruns and moving:
+            self._abort(f"the servo ran out of position commands ({st.underruns - self._underruns} "
+                        "underruns)")
+        self._underruns = st.underruns
+
+    def _fill(self, now: float) -> list[bytes]:
+        """The commands to send now to keep ``lead`` of them in the servo FIFO (lock held)."""
+        depth = self._fifo.depth(now)
+        want = int(round(self.lead / self.period)) - int(depth)
+        out: list[bytes] = []
+        while len(out) < want:
+            q = self._next_sample(now)
+            if q is None:
+                break
+            due = now + (depth + len(out)) * self.period
+            self._busy_until = due
+            out.append(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(
+                Time.from_seconds(due), tuple(q.tolist()))))
+        self._fifo.sent(now, len(out))
+        return out
+
+    def _next_sample(self, now: float) -> Joints | None:
+        """The next command, advancing through segments and the queue; None when there is none."""
+        while True:
+            seg = self._active
+            if seg is None:
+                if self._paused or not self._queue:
+                    return None
+                motion = self._queue.popleft()
+                if self._idle(now) and not self._starts_at_servo(motion):
+                    return None
+                self._active = seg = _Segment(motion, motion.profile, motion.q, _Kind.RUN)
+                log.debug("motion %d starts (%.3f s)", motion.motion, motion.duration)
+            if seg.k < len(seg.q):
+                q = seg.q[seg.k]
+                seg.k += 1
+                self._last_sent = q
+                return q
+            self._segment_done(seg, max(now, self._busy_until))
+
+    def _starts_at_servo(self, motion: PlannedMotion) -> bool:
+        """False (and abort) if the servo does not hold the arm where ``motion`` starts."""
+        st = self._status
+        if st is None or len(st.target) != self.dof:
+            return True
+        gap = float(np.max(np.abs(np.array(st.target) - motion.start)))
+        if gap <= START_TOLERANCE:
+            return True
+        self._queue.appendleft(motion)
+        self._abort(f"the servo holds the arm {gap:.3g} away from where motion {motion.motion} starts")
+        return False
+
+    def _segment_done(self, seg: _Segment, due: float) -> None:
+        """Every sample of ``seg`` has been sent; ``due`` is when the last one is consumed."""
+        self._active = None
+        if seg.kind is _Kind.RUN:
+            self._inflight.append((seg.motion.motion, due))
+        elif seg.kind is _Kind.PAUSE:
+            if seg.profile.finished_at_end:  # it could only stop at the end: the motion is done
+                self._inflight.append((seg.motion.motion, due))
+            elif seg.resume_after:
+                self._active = seg.resumed()
+            else:
+                self._held = seg
+                log.info("paused: motion %d holds at %.1f %% of its path", seg.motion.motion,
+                         100.0 * seg.profile.s_end / seg.profile.length)

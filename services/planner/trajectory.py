@@ -1,0 +1,100 @@
+"""A planned motion: joints as a function of the path parameter, and its speed profile.
+
+The streamer only ever needs joints at values of the path parameter ``s``
+(the nominal profile's samples, a braking profile's, a resumed profile's), so
+every motion carries a :class:`JointMap` ``s -> q``:
+
+* :class:`LineMap` -- a joint-space line (PTP, goHome, gripper): exact.
+* :class:`TableMap` -- a Cartesian path (LIN, CIRC) solved by IK at the
+  nominal profile's samples; between them, joints are interpolated linearly in
+  ``s``. Samples are 1 servo period apart, so the interpolated point leaves the
+  Cartesian path by far less than a micrometre (chord of a sub-millimetre step).
+
+Joint vectors are the wire's: arm axes J1..Jn, then the gripper axis if fitted
+[rad or m].
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .paths import JointLine
+from .profile import PathProfile
+
+Joints = NDArray[np.float64]
+
+
+class JointMap(Protocol):
+    """Joints at path parameters: ``(N,) -> (N, dof)`` [rad or m]."""
+
+    def joints(self, s: NDArray[np.float64]) -> Joints:
+        ...
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class LineMap:
+    """A straight line in joint space (all wire axes)."""
+
+    line: JointLine
+
+    def joints(self, s: NDArray[np.float64]) -> Joints:
+        return self.line.sample(s)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TableMap:
+    """Joints tabulated at increasing ``s`` (from 0 to the path length), linear in between."""
+
+    s: NDArray[np.float64]  # (M,) strictly increasing, s[0] = 0, s[-1] = length
+    q: Joints  # (M, dof)
+
+    @classmethod
+    def build(cls, s: NDArray[np.float64], q: Joints) -> TableMap:
+        """From profile samples, dropping repeated ``s`` (rest at the ends)."""
+        keep = np.concatenate(([True], np.diff(s) > 0.0))
+        return cls(np.ascontiguousarray(s[keep]), np.ascontiguousarray(q[keep]))
+
+    def joints(self, s: NDArray[np.float64]) -> Joints:
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        tab = self.s
+        if len(tab) == 1:
+            return np.repeat(self.q[:1], len(s), axis=0)
+        i = np.clip(np.searchsorted(tab, s, side="right") - 1, 0, len(tab) - 2)
+        w = (s - tab[i]) / (tab[i + 1] - tab[i])
+        out = self.q[i] + w[:, None] * (self.q[i + 1] - self.q[i])
+        out[s >= tab[-1]] = self.q[-1]  # the target exactly
+        out[s <= tab[0]] = self.q[0]
+        return out
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PlannedMotion:
+    """One accepted motion: its id, its joint map, its nominal profile and samples."""
+
+    motion: int  # id given by the command service
+    op: str  # IDL operation name
+    path: JointMap
+    profile: PathProfile  # nominal, from rest at s = 0 to rest at the end
+    q: Joints  # (N, dof) joints at profile.sample(dt); q[0] is the start, q[-1] the end
+    dt: float  # [s] sampling period (the servo period)
+
+    @property
+    def start(self) -> Joints:
+        return self.q[0]
+
+    @property
+    def end(self) -> Joints:
+        return self.q[-1]
+
+    @property
+    def duration(self) -> float:
+        """[s] nominal duration."""
+        return self.profile.duration
+
+    def joints_along(self, profile: PathProfile) -> Joints:
+        """Joints at the samples of ``profile`` (a braking or resumed profile on this path)."""
+        return self.path.joints(profile.sample(self.dt).s)

@@ -1,0 +1,106 @@
+"""compose.yaml and the Dockerfile, checked without a Docker engine.
+
+The services and commands they name must be the ones the launcher knows, and
+each command (variables at their defaults) must be accepted by the parser of
+the program that runs it.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from jara_arm.launcher import cli
+from jara_arm.launcher.services import NAMES
+from jara_arm.robots import ROBOTS
+from jara_arm.schema.keys import check_arm
+
+ROOT = Path(__file__).resolve().parent.parent
+ROUTER = "router"
+_VARIABLE = re.compile(r"\$\{(\w+)(:?-)?([^}]*)\}")
+
+pytestmark = pytest.mark.timeout(30)
+
+
+def substitute_defaults(value: str) -> str:
+    """``${VAR:-default}`` → ``default``, as compose does with VAR unset; every variable needs one."""
+    def default(m: re.Match[str]) -> str:
+        assert m[2], f"compose variable ${{{m[1]}}} has no default"
+        return m[3]
+
+    return _VARIABLE.sub(default, value).replace("$$", "$")
+
+
+@pytest.fixture(scope="module")
+def compose() -> dict[str, Any]:
+    data = yaml.safe_load((ROOT / "compose.yaml").read_text())
+    assert isinstance(data, dict) and isinstance(data.get("services"), dict)
+    return data
+
+
+def command(service: dict[str, Any]) -> list[str]:
+    cmd = service["command"]
+    assert isinstance(cmd, list), "commands are lists: no shell, no word splitting"
+    return [substitute_defaults(str(word)) for word in cmd]
+
+
+def test_every_service_is_in_the_launcher_table(compose: dict[str, Any]) -> None:
+    names = set(compose["services"]) - {ROUTER}
+    assert names, "no service besides the router"
+    assert names <= set(NAMES), f"not in the launcher's service table: {names - set(NAMES)}"
+    assert ROUTER in compose["services"]
+
+
+def test_every_command_is_accepted_by_its_parser(compose: dict[str, Any]) -> None:
+    for name, service in compose["services"].items():
+        cmd = command(service)
+        assert cmd[0] == "jara-arm", f"{name}: {cmd}"
+        parser, argv = cli.command_parser(cmd[1:])
+        args = parser.parse_args(argv)  # SystemExit(2) here names the offending option
+        if name == ROUTER:
+            assert cmd[1] == "router"
+            continue
+        assert cmd[1:3] == ["service", name], f"compose service {name} runs {cmd[1:3]}"
+        check_arm(args.arm)
+        assert args.robot in ROBOTS
+        # A client of the router service, found by its compose name.
+        assert args.mode == "client"
+        assert args.connect and all(f"/{ROUTER}:" in e for e in args.connect), args.connect
+
+
+def test_router_listens_on_the_published_port(compose: dict[str, Any]) -> None:
+    router = compose["services"][ROUTER]
+    parser, argv = cli.command_parser(command(router)[1:])
+    listen = parser.parse_args(argv).listen
+    assert listen == ["tcp/0.0.0.0:7447"]
+    published = [substitute_defaults(str(p)) for p in router["ports"]]
+    assert any(p.endswith(":7447") for p in published), published
+    for name in set(compose["services"]) - {ROUTER}:
+        assert ROUTER in compose["services"][name]["depends_on"]
+
+
+def test_servo_may_raise_its_priority(compose: dict[str, Any]) -> None:
+    assert "SYS_NICE" in compose["services"]["servo"]["cap_add"]
+
+
+def test_dockerfile_installs_the_package() -> None:
+    text = (ROOT / "Dockerfile").read_text()
+    assert re.search(r"^FROM python:3\.11-slim\b", text, re.M)
+    assert re.search(r"pip wheel\b.*\s\.$", text, re.M), "builds the repository's package"
+    assert re.search(r"pip install\b.*\sjara-arm$", text, re.M), "installs it"
+    # The default command is a valid `jara-arm` command line too.
+    [cmd] = re.findall(r"^CMD (\[.*\])$", text, re.M)
+    words = json.loads(cmd)
+    assert words[0] == "jara-arm"
+    parser, argv = cli.command_parser(words[1:])
+    parser.parse_args(argv)
+
+
+def test_dockerignore_keeps_the_context_small() -> None:
+    ignored = (ROOT / ".dockerignore").read_text().split()
+    assert ".venv" in ignored and ".git" in ignored

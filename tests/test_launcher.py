@@ -1,0 +1,239 @@
+"""``jara-arm up`` as a real process: one router, service processes, restarts, clean shutdown."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from jara_arm.launcher import cli, supervisor, up
+from jara_arm.launcher.router import RouterSettings, local_endpoint
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.keys import Service
+
+from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
+
+LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
+_STARTED = re.compile(r"started (\S+) \((\S+)\): pid (\d+)")
+
+
+def started_pids(proc: Proc) -> list[tuple[str, str, int]]:
+    """``(service, arm, pid)`` of every child the launcher said it started, in order."""
+    return [(m[1], m[2], int(m[3])) for line in list(proc.lines) if (m := _STARTED.search(line))]
+
+
+def proc_alive(pid: int) -> bool:
+    """Running (not gone, not a zombie)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def processes_with(needle: str) -> list[int]:
+    """Live processes whose command line contains ``needle`` (e.g. the test's own port)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit() and int(d.name) != os.getpid():
+            with contextlib.suppress(OSError):
+                if needle in (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"):
+                    if proc_alive(int(d.name)):
+                        pids.append(int(d.name))
+    return pids
+
+
+@contextlib.contextmanager
+def launcher(*args: str) -> Iterator[tuple[Proc, int]]:
+    """``jara-arm up`` on a port of its own, ready; stopped (and swept) afterwards."""
+    port = free_port()
+    proc = Proc([*LAUNCHER, "up", "--listen", endpoint(port), *args])
+    try:
+        proc.wait_for_line("jara-arm: ready", timeout=30)
+        yield proc, port
+    finally:
+        proc.stop(signal.SIGINT)
+        for pid in processes_with(f"127.0.0.1:{port}"):  # only after a failure
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.timeout(40)
+def test_up_serves_and_prints_logs() -> None:
+    with launcher() as (proc, port):
+        proc.wait_for_line("arm0/servo: servo up", timeout=10)
+        ready = [line for line in proc.lines if "ready" in line]
+        assert len(ready) == 1, proc.output
+        assert "arm0 (iiwa): servo" in ready[0] and f"listening on {endpoint(port)}" in ready[0]
+        with client_session(port) as session:
+            assert Client(session).servo("getState").id == ReturnCode.OK
+            # The liveliness tokens reach clients of the router too.
+            wait_alive(session, "arm0", [Service.SERVO], timeout=5)
+
+
+@pytest.mark.timeout(40)
+def test_two_arms_with_their_own_robots() -> None:
+    with launcher("--arm", "a1", "--arm", "a2:panda") as (proc, port):
+        ready = proc.wait_for_line("jara-arm: ready")
+        assert "a1 (iiwa): servo" in ready and "a2 (panda): servo" in ready
+        with client_session(port) as session:
+            a1 = Client(session, "a1").servo("getManipInfo")
+            a2 = Client(session, "a2").servo("getManipInfo")
+        assert a1.id == ReturnCode.OK and a2.id == ReturnCode.OK
+        assert a1["mInfo"].isGripper is False
+        assert a2["mInfo"].isGripper is True
+        assert {(s, a) for s, a, _ in started_pids(proc)} == {("servo", "a1"), ("servo", "a2")}
+
+
+@pytest.mark.timeout(40)
+def test_killed_service_is_restarted() -> None:
+    with launcher() as (proc, port):
+        proc.wait_for_line("arm0/servo: servo up", timeout=10)
+        [(_, _, pid)] = started_pids(proc)
+        mark = len(proc.lines)
+        os.kill(pid, signal.SIGKILL)
+        line = proc.wait_for_line("died with SIGKILL", timeout=5, start=mark)
+        assert "servo (arm0) died with SIGKILL; restarting in 0.5 s" in line
+        wait_until(lambda: len(started_pids(proc)) == 2, timeout=5, what="the restart")
+        new_pid = started_pids(proc)[1][2]
+        assert new_pid != pid and proc_alive(new_pid)
+        proc.wait_for_line("arm0/servo: servo up", timeout=15, start=mark)
+        with client_session(port) as session:
+            assert Client(session).servo("getState").id == ReturnCode.OK
+
+
+@pytest.mark.timeout(40)
+def test_sigint_stops_every_child() -> None:
+    with launcher("--arm", "a1", "--arm", "a2") as (proc, port):
+        pids = [pid for _, _, pid in started_pids(proc)]
+        assert len(pids) == 2 and all(proc_alive(p) for p in pids)
+        os.kill(proc.popen.pid, signal.SIGINT)
+        assert proc.popen.wait(10) == 0, proc.output
+        assert not [p for p in pids if proc_alive(p)], proc.output
+        assert not processes_with(f"127.0.0.1:{port}"), proc.output
+        assert "Traceback" not in proc.output
+
+
+@pytest.mark.timeout(20)
+@pytest.mark.parametrize("argv, message", [
+    (["up", "--robot", "nope"], "invalid choice: 'nope'"),
+    (["up", "--arm", "a1:nope"], "unknown robot 'nope'"),
+    (["up", "--arm", "bad/id"], "arm id 'bad/id' must be one chunk"),
+    (["up", "--arm", "a1", "--arm", "a1:panda"], "given twice"),
+    (["up", "--listen", "nonsense"], "Endpoints must be of the form"),
+    (["up", "--config", "/nonexistent.json5"], "cannot read Zenoh config"),
+    (["router", "--log-level", "loud"], "invalid choice"),
+    (["service", "nope"], "invalid choice: 'nope'"),
+    (["service", "servo", "--robot", "nope"], "invalid choice: 'nope'"),
+    (["frobnicate"], "invalid choice"),
+])
+def test_bad_cli_input_exits_2(argv: list[str], message: str,
+                               capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+@pytest.mark.timeout(20)
+def test_port_in_use_is_a_readable_error() -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        run = subprocess.run([*LAUNCHER, "up", "--listen", endpoint(port)], capture_output=True,
+                             text=True, timeout=15)
+    assert run.returncode == 2, run.stderr
+    assert "Address already in use" in run.stderr and "Traceback" not in run.stderr
+    assert "started" not in run.stderr  # no child was started
+
+
+def test_restart_backoff_doubles_to_a_cap_and_resets_after_stable_running() -> None:
+    child = supervisor.Child("x (arm0)", ["true"])
+    delays = []
+    for _ in range(7):
+        child.started_at = 100.0
+        child._schedule_restart(101.0)  # died 1 s after its start: a crash loop
+        assert child.restart_at is not None
+        delays.append(child.restart_at - 101.0)
+    assert delays == [0.5, 1.0, 2.0, 4.0, 8.0, 10.0, 10.0]
+    child._schedule_restart(100.0 + supervisor.STABLE_AFTER)  # ran long enough: start over
+    assert child.restart_at == pytest.approx(100.0 + supervisor.STABLE_AFTER + 0.5)
+
+
+def test_exit_descriptions() -> None:
+    assert supervisor.describe_exit(-signal.SIGKILL) == "died with SIGKILL"
+    assert supervisor.describe_exit(3) == "exited with code 3"
+
+
+def test_children_connect_to_a_loopback_address() -> None:
+    assert local_endpoint("tcp/0.0.0.0:7447") == "tcp/127.0.0.1:7447"
+    assert local_endpoint("tcp/[::]:7447") == "tcp/[::1]:7447"
+    assert local_endpoint("tcp/10.0.0.5:7447") == "tcp/10.0.0.5:7447"
+
+
+@pytest.mark.timeout(30)
+def test_children_exit_when_the_launcher_is_killed() -> None:
+    with launcher() as (proc, port):
+        [(_, _, pid)] = started_pids(proc)
+        os.kill(proc.popen.pid, signal.SIGKILL)  # no chance to stop them: --exit-with-parent does
+        proc.popen.wait(5)
+        wait_until(lambda: not proc_alive(pid), timeout=10, what="the orphaned servo to exit")
+
+
+@pytest.mark.timeout(40)
+def test_router_and_a_service_run_by_hand() -> None:
+    """The compose topology, without containers: `jara-arm router` + `jara-arm service servo`."""
+    port = free_port()
+    router = Proc([*LAUNCHER, "router", "--listen", endpoint(port)])
+    servo = None
+    try:
+        router.wait_for_line("jara-arm: ready: router", timeout=15)
+        servo = Proc([*LAUNCHER, "service", "servo", "--arm", "arm0", "--robot", "iiwa",
+                      "--mode", "client", "--connect", endpoint(port), "--realtime-priority", "0"])
+        router.wait_for_line("servo (arm0) joined", timeout=20)
+        with client_session(port) as session:
+            assert Client(session).servo("getState").id == ReturnCode.OK
+        assert servo.stop(signal.SIGTERM) == 0, servo.output
+        router.wait_for_line("servo (arm0) left", timeout=10)
+        assert router.stop(signal.SIGTERM) == 0, router.output
+    finally:
+        for p in (servo, router):
+            if p is not None:
+                p.stop(signal.SIGKILL)
+
+
+class _FakePresence:
+    def __init__(self) -> None:
+        self.alive: set[tuple[str, str]] = set()
+
+    def drain(self) -> list[tuple[bool, str, str]]:
+        return []
+
+
+def test_readiness_warns_about_missing_services_then_says_ready_once(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+        caplog: pytest.LogCaptureFixture) -> None:
+    monkeypatch.setattr(up, "READY_TIMEOUT", 0.0)
+    presence = _FakePresence()
+    settings = up.UpSettings((up.ArmSpec("a1", "iiwa"), up.ArmSpec("a2", "panda")),
+                             RouterSettings(("tcp/127.0.0.1:7447",)))
+    readiness = up.Readiness(settings, presence)  # type: ignore[arg-type]
+    presence.alive.add(("a1", "servo"))
+    with caplog.at_level(logging.WARNING, "jara_arm.launcher"):
+        readiness.poll()
+    assert "still waiting for servo (a2)" in caplog.text and "servo (a1)" not in caplog.text
+    assert "ready" not in capsys.readouterr().out
+    presence.alive.add(("a2", "servo"))
+    readiness.poll()
+    readiness.poll()
+    assert capsys.readouterr().out.splitlines() == [
+        "jara-arm: ready: a1 (iiwa): servo; a2 (panda): servo; listening on tcp/127.0.0.1:7447"]
