@@ -60,6 +60,7 @@ class ServiceSpec:
 # One line per service, lower layers first.
 SERVICES: tuple[ServiceSpec, ...] = (
     ServiceSpec(Service.SERVO, "jara_arm.services.servo", "low level: simulated arm, SyncFIFO servo loop, Servo/Common"),
+    ServiceSpec(Service.COMMAND, "jara_arm.services.command", "middle level: Common and Middle, state, settings, motion queue"),
 )
 
 NAMES: tuple[str, ...] = tuple(s.name for s in SERVICES)

@@ -142,6 +142,11 @@ class Rig:
         self.client = Client(session, arm)
         self.keys = ArmKeys(arm)
         self.proc = proc
+        self.planner_proc: Proc | None = None
+
+    def planner_log(self, lines: int = 20) -> str:
+        """The tail of the planner's output, to tell a planner refusal from a command bug."""
+        return "\n".join(self.planner_proc.lines[-lines:]) if self.planner_proc else ""
 
     def state(self) -> int:
         return self.client.common(OP.getState)["state"]
@@ -165,14 +170,14 @@ class Rigs:
         self.fake_peers = FakePeers(self.router, "fake")
         servo = self._start(Service.SERVO, "arm0")
         command = self._start(Service.COMMAND, "arm0")
-        if HAVE_PLANNER:
-            self._start(Service.PLANNER, "arm0")
+        self.planner_proc = self._start(Service.PLANNER, "arm0") if HAVE_PLANNER else None
         fake = self._start(Service.COMMAND, "fake", "--plan-timeout", str(FAKE_PLAN_TIMEOUT))
         wait_alive(self.router, "arm0", [Service.SERVO, Service.COMMAND]
                    + ([Service.PLANNER] if HAVE_PLANNER else []), timeout=60)
         wait_alive(self.router, "fake", [Service.COMMAND], timeout=60)
         self.servo_proc = servo
         self.real = Rig(self.router, "arm0", command)
+        self.real.planner_proc = self.planner_proc
         self.fake = Rig(self.router, "fake", fake)
 
     def _start(self, service: Service, arm: str, *extra: str) -> Proc:
@@ -730,8 +735,8 @@ def slow_motions(real: Rig, count: int) -> list[Reply]:
 @needs_planner
 def test_real_queue_full_on_the_33rd_motion_and_stop_discards(real: Rig):
     replies = slow_motions(real, 33)
-    assert [r.id for r in replies[:32]] == [OK] * 32, replies
-    assert replies[32].id == ReturnCode.FULL_MOTION_QUEUE_ERR, replies[32]
+    assert [r.id for r in replies[:32]] == [OK] * 32, (replies, real.planner_log())
+    assert replies[32].id == ReturnCode.FULL_MOTION_QUEUE_ERR, (replies[32], real.planner_log())
     assert real.state() & StateBit.BUFFER_FULL and real.state() & StateBit.MOVING
     real.ok(Interface.MIDDLE, OP.stop)
     assert not real.state() & StateBit.BUFFER_FULL
@@ -740,7 +745,7 @@ def test_real_queue_full_on_the_33rd_motion_and_stop_discards(real: Rig):
 
 @needs_planner
 def test_real_pause_sets_the_paused_bit(real: Rig):
-    assert [r.id for r in slow_motions(real, 2)] == [OK, OK]
+    assert [r.id for r in slow_motions(real, 2)] == [OK, OK], real.planner_log()
     wait_until(lambda: real.state() & StateBit.MOVING, 2, what="moving")
     real.ok(Interface.MIDDLE, OP.pause)
     assert real.state() & StateBit.PAUSED

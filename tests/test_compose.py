@@ -104,3 +104,8 @@ def test_dockerfile_installs_the_package() -> None:
 def test_dockerignore_keeps_the_context_small() -> None:
     ignored = (ROOT / ".dockerignore").read_text().split()
     assert ".venv" in ignored and ".git" in ignored
+
+
+def test_compose_runs_every_service_of_the_launcher(compose: dict[str, Any]) -> None:
+    """The containers are the same deployment as `jara-arm up`: no service left out."""
+    assert set(NAMES) <= set(compose["services"]), set(NAMES) - set(compose["services"])

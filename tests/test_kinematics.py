@@ -227,6 +227,18 @@ def test_ik_respects_narrower_limits(kins, name):
         kin.ik(kin.fk(mid), mid, lower=kin.lower - 1.0, upper=kin.upper)
 
 
+def test_ik_is_reproducible(kins):
+    kin = kin_of(kins, "panda")
+    rng = np.random.default_rng(14)
+    problems = [(kin.fk(uniform(kin, rng)), uniform(kin, rng)) for _ in range(20)]
+    first = [kin.ik(t, s) for t, s in problems]
+    fresh = Kinematics(ROBOTS["panda"])
+    again = [fresh.ik(t, s) for t, s in problems[:10]] + [kin.ik(t, s) for t, s in problems[10:]]
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a.q, b.q)
+        assert a.iterations == b.iterations
+
+
 def test_ik_unreachable_fails_within_limits(kins):
     kin = kin_of(kins, "iiwa")
     target = np.eye(4)

@@ -47,8 +47,9 @@ def reach_box(radius: float, base_offset: HgMatrix) -> tuple[LimitValue, LimitVa
     The arm base origin in the robot frame is ``inv(B)`` applied to the origin;
     an axis-aligned cube of half-size ``radius`` holds the ball whatever B's rotation.
     """
-    centre = arm_to_robot(np.eye(4), base_offset)[:3, 3]
-    return tuple(LimitValue(float(c + radius), float(c - radius)) for c in centre)  # type: ignore[return-value]
+    x, y, z = (float(c) for c in arm_to_robot(np.eye(4), base_offset)[:3, 3])
+    return (LimitValue(x + radius, x - radius), LimitValue(y + radius, y - radius),
+            LimitValue(z + radius, z - radius))
 
 
 class CartesianFeedback:

@@ -95,7 +95,7 @@ def _positive_seconds(text: str) -> float:
     return value
 
 
-def _options(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--queue-capacity", type=_positive_int, default=DEFAULT_CAPACITY, metavar="N",
                         help=f"motions the queue holds before FULL_MOTION_QUEUE_ERR "
                         f"(default: {DEFAULT_CAPACITY})")
@@ -106,4 +106,4 @@ def _options(parser: argparse.ArgumentParser) -> None:
 
 
 def run(argv: Sequence[str] | None = None) -> int:
-    return run_service(Service.COMMAND, __doc__.splitlines()[0], main, argv, _options)
+    return run_service(Service.COMMAND, __doc__.splitlines()[0], main, argv, add_arguments)

@@ -13,8 +13,9 @@ control calls. The bits:
 * 0x10 paused.
 
 ``paused`` follows the command's own successful pause/resume/stop/abort at
-once, and the planner's ``paused`` flag when it changes (an edge), so that a
-progress message published just before a pause cannot undo it.
+once, and the planner's ``paused`` flag in its first message and whenever it
+changes (an edge), so that a progress message published just before a pause
+cannot undo it.
 """
 
 from __future__ import annotations
@@ -105,10 +106,6 @@ class StateTracker:
             capacity=q.capacity,
         )
 
-    def queue_ids(self) -> tuple[int, ...]:
-        with self._cond:
-            return self._queue.ids
-
     # -- inputs -----------------------------------------------------------------------
     def on_status(self, status: ServoStatus) -> None:
         with self._cond:
@@ -123,8 +120,8 @@ class StateTracker:
             self._progress_since_up = True
             self._cond.notify_all()
             self._queue.update(progress)
-            if self._planner_paused is not None and progress.paused != self._planner_paused:
-                self._paused = progress.paused
+            if self._planner_paused is None or progress.paused != self._planner_paused:
+                self._paused = progress.paused  # first message (adopt it) or an edge
             self._planner_paused = progress.paused
             self._changed()
 

@@ -2,4 +2,5 @@ import sys
 
 from .main import run
 
-sys.exit(run())
+if __name__ == "__main__":  # the planning process (multiprocessing spawn) imports this module too
+    sys.exit(run())

@@ -38,6 +38,7 @@ from jara_arm.robots.model import RobotModel
 from jara_arm.schema.errors import JaraArmError
 
 __all__ = [
+    "DEFAULT_ELBOW_JOINTS",
     "FULL_MASK",
     "POSITION_MASK",
     "IkResult",
@@ -307,6 +308,7 @@ class Kinematics:
         self._upper = np.array([x.upper for x in lim])
         self._revolute = ~np.array(robot.prismatic)
         self._plo, self._phi = self._pin_limits(None, None)
+        self._limits_cache: tuple[tuple[bytes, bytes], tuple[np.ndarray, np.ndarray, bool]] | None = None
         self._wrap_default = self._wraps(self._plo, self._phi)
 
         if model.existFrame(robot.flange_frame, pin.FrameType.BODY):
@@ -628,8 +630,7 @@ class Kinematics:
         if lower is None and upper is None:
             lo, hi, wraps = self._plo, self._phi, self._wrap_default
         else:
-            lo, hi = self._pin_limits(lower, upper)
-            wraps = self._wraps(lo, hi)
+            lo, hi, wraps = self._limits(lower, upper)
         q0 = np.minimum(np.maximum(self._q(q_seed, "q_seed"), lo), hi)
         fid = self._frame(tool)
         ctx = _Restarts(self, a, tool, mask, None, lo, hi)
@@ -643,6 +644,19 @@ class Kinematics:
         if ok and wraps:
             q = self._nearest_turn(q, q0, lo, hi)
         return IkResult(self._user_q(q), ok, it, pe, re, ee)
+
+    def _limits(self, lower: ArrayLike | None, upper: ArrayLike | None) -> tuple[np.ndarray, np.ndarray, bool]:
+        """Checked limits in Pinocchio order and the wrap flag; the last pair is cached by value."""
+        lo_a = self._lower if lower is None else np.asarray(lower, dtype=float)
+        hi_a = self._upper if upper is None else np.asarray(upper, dtype=float)
+        key = (lo_a.tobytes(), hi_a.tobytes())
+        cached = self._limits_cache
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        lo, hi = self._pin_limits(lo_a, hi_a)
+        value = (lo.copy(), hi.copy(), self._wraps(lo, hi))
+        self._limits_cache = (key, value)
+        return value
 
     def _wraps(self, lo: np.ndarray, hi: np.ndarray) -> bool:
         return bool(np.any((hi - lo > _TWO_PI) & self._revolute_pin))

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .paths import JointLine
-from .profile import PathProfile
+from .profile import PathProfile, ProfileLimits, move_profile
 
 Joints = NDArray[np.float64]
 
@@ -98,3 +98,13 @@ class PlannedMotion:
     def joints_along(self, profile: PathProfile) -> Joints:
         """Joints at the samples of ``profile`` (a braking or resumed profile on this path)."""
         return self.path.joints(profile.sample(self.dt).s)
+
+    def __reduce__(self) -> tuple:
+        # Ruckig trajectories do not pickle: the nominal profile (rest to rest) is rebuilt.
+        p = self.profile
+        return (_rebuild, (self.motion, self.op, self.path, p.length, p.limits, p.s_start, self.q, self.dt))
+
+
+def _rebuild(motion: int, op: str, path: JointMap, length: float, limits: ProfileLimits, s_start: float,
+             q: Joints, dt: float) -> PlannedMotion:
+    return PlannedMotion(motion, op, path, move_profile(length, limits, s_start), q, dt)
