@@ -1,9 +1,14 @@
 """``jara-arm``: run the arm services on this host, one of them, or a bare Zenoh router.
 
-    jara-arm up [--arm ID[:ROBOT]]... [--robot NAME] [--listen ENDPOINT]... [--connect ENDPOINT]...
-                [--config ZENOH_CONFIG_FILE] [--multicast] [--log-level LEVEL]
+    jara-arm up [--arm ID[:ROBOT]]... [--robot NAME] [--obstacle X,Y,Z,HX,HY,HZ]... [--listen ENDPOINT]...
+                [--connect ENDPOINT]... [--config ZENOH_CONFIG_FILE] [--multicast] [--log-level LEVEL]
     jara-arm service NAME [the service's own arguments; see jara-arm service NAME --help]
     jara-arm router [--listen ENDPOINT]... [--connect ENDPOINT]... [--config FILE] [--multicast]
+    jara-arm logs [--arm ID] [--service NAME] [--level LEVEL] [Zenoh options]
+    jara-arm alarms [--arm ID] [Zenoh options]
+
+``logs`` and ``alarms`` join any Zenoh network (by default as a client of
+tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM.
 
 A user mistake (unknown robot, bad arm id, a port already in use…) prints one
 readable message and exits with status 2.
@@ -17,14 +22,18 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from jara_arm.robots import DEFAULT_ROBOT, ROBOTS
-from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, check_arm
-from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments
+import zenoh
 
-from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router
+from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
+from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
+from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, zenoh_config
+
+from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
 from .services import NAMES, SERVICES, spec
 from .supervisor import StopSignals
 from .up import ArmSpec, UpSettings, run_up
+from .watch import LOG_LEVELS as RECORD_LEVELS
+from .watch import run_alarms, run_logs
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 USAGE_ERROR = 2
@@ -48,6 +57,10 @@ class _Parsers:
                              f"(repeatable; default: {DEFAULT_ARM})")
         self.up.add_argument("--robot", default=DEFAULT_ROBOT, choices=list(ROBOTS),
                              help=f"robot model of the arms given without one (default: {DEFAULT_ROBOT})")
+        self.up.add_argument("--obstacle", action="append", default=[], type=_obstacle,
+                             metavar="X,Y,Z,HX,HY,HZ",
+                             help="a fixed box in every arm's simulated world: centre and half extents "
+                             "[m] (repeatable)")
         _log_level(self.up)
         _router_zenoh_arguments(self.up)
 
@@ -65,6 +78,52 @@ class _Parsers:
             "until SIGINT/SIGTERM, reporting the services that join or leave.")
         _log_level(self.router)
         _router_zenoh_arguments(self.router)
+
+        self.logs = sub.add_parser(
+            "logs", help="print the services' log records as they come",
+            description="Subscribe to JARA_ARM/<arm>/log/<service> from anywhere on the Zenoh "
+            "network and print each record as it arrives.")
+        _arm_filter(self.logs)
+        self.logs.add_argument("--service", choices=[s.value for s in Service], metavar="NAME",
+                               help=f"only this service ({', '.join(s.value for s in Service)}; "
+                               "default: every one)")
+        self.logs.add_argument("--level", type=str.upper, default="DEBUG", choices=RECORD_LEVELS,
+                               help="only records at this level or above (default: DEBUG, all)")
+        _client_zenoh_arguments(self.logs)
+
+        self.alarms = sub.add_parser(
+            "alarms", help="print the active alarms, then every alarm event as it comes",
+            description="Ask the alarm monitor for the active alarms and print them, then print "
+            "every event on JARA_ARM/<arm>/alarm (raised, cleared) as it arrives.")
+        _arm_filter(self.alarms)
+        _client_zenoh_arguments(self.alarms)
+
+
+def _obstacle(text: str) -> str:
+    """``--obstacle`` of ``up``: checked here, passed on to the servos as written."""
+    try:
+        return Obstacle.parse(text).argument()
+    except RobotModelError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _arm_id(text: str) -> str:
+    try:
+        return check_arm(text)
+    except ArmIdError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _arm_filter(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--arm", type=_arm_id, metavar="ID", help="only this arm (default: every arm)")
+
+
+def _client_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """The shared Zenoh options; a client of the launcher's default endpoint unless told otherwise."""
+    add_zenoh_arguments(parser, default_mode="client")
+    for action in parser._actions:
+        if "--connect" in action.option_strings:
+            action.help = f"{action.help} (default: {DEFAULT_LISTEN})"
 
 
 def _log_level(parser: argparse.ArgumentParser) -> None:
@@ -93,6 +152,10 @@ def command_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, list[s
         return parsers.up, argv[1:]
     if argv[:1] == ["router"]:
         return parsers.router, argv[1:]
+    if argv[:1] == ["logs"]:
+        return parsers.logs, argv[1:]
+    if argv[:1] == ["alarms"]:
+        return parsers.alarms, argv[1:]
     if argv[:1] == ["service"] and len(argv) >= 2 and argv[1] in NAMES:
         return spec(argv[1]).parser(), argv[2:]
     raise ValueError(f"not a jara-arm command: {' '.join(argv)!r}")
@@ -121,7 +184,7 @@ def _up_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> U
         if any(a.arm == arm for a in arms):
             parser.error(f"--arm {item}: arm {arm!r} is given twice")
         arms.append(ArmSpec(arm, robot))
-    return UpSettings(tuple(arms), _router_settings(args, parser), args.log_level)
+    return UpSettings(tuple(arms), _router_settings(args, parser), args.log_level, tuple(args.obstacle))
 
 
 def _setup_logging(level: str) -> None:
@@ -134,11 +197,29 @@ def _setup_logging(level: str) -> None:
     root.setLevel(level)
 
 
+def _listen(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``logs`` and ``alarms``: a session on the network, printing until SIGINT/SIGTERM."""
+    connect = args.connect or ([] if args.config else [DEFAULT_LISTEN])
+    try:
+        session = zenoh.open(zenoh_config(args.mode, args.listen, connect, args.config, args.multicast))
+    except zenoh.ZError as exc:
+        parser.error(f"cannot join the Zenoh network ({', '.join(connect) or args.config}): "
+                     f"{zerror_text(exc)}")
+    signals = StopSignals()
+    with session:
+        if args.command == "logs":
+            return run_logs(session, signals.stop, args.arm, args.service, args.level)
+        return run_alarms(session, signals.stop, args.arm)
+
+
 def _run(argv: list[str]) -> int:
     parsers = _Parsers()
     args = parsers.top.parse_args(argv)
     if args.command == "service":
         return spec(args.name).run(args.args)
+    if args.command in ("logs", "alarms"):
+        _setup_logging("WARNING")
+        return _listen(args, parsers.logs if args.command == "logs" else parsers.alarms)
     parser = parsers.up if args.command == "up" else parsers.router
     settings = (_up_settings(args, parser) if args.command == "up"
                 else _router_settings(args, parser))

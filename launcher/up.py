@@ -17,22 +17,17 @@ import os
 import sys
 import time
 
-import zenoh
-
-from jara_arm.schema import codec, messages
-from jara_arm.schema.errors import JaraArmError
-from jara_arm.schema.keys import any_arm_log, parse_log
+from jara_arm.schema.keys import Service, any_arm_log
 
 from .router import Presence, RouterSettings, local_endpoint, open_router, say
 from .services import SERVICES, ServiceSpec
 from .supervisor import Child, StopSignals, Supervisor
+from .watch import LogPrinter
 
 log = logging.getLogger("jara_arm.launcher")
 
 READY_TIMEOUT = 60.0  #: warn (and keep waiting) if the services are not all alive by then [s]
 POLL_PERIOD = 0.1  #: main loop period: children, logs, liveliness [s]
-_LOG_QUEUE = 4096  #: log records buffered between two polls; more are dropped by Zenoh
-_LOGS_PER_POLL = 2000  #: bound on the records printed per poll, so supervision keeps its pace
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +41,7 @@ class UpSettings:
     arms: tuple[ArmSpec, ...]
     router: RouterSettings
     log_level: str = "INFO"
+    obstacles: tuple[str, ...] = ()  # ``x,y,z,hx,hy,hz`` [m], passed to every servo as --obstacle
 
 
 def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list[str]:
@@ -55,44 +51,14 @@ def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list
             "--exit-with-parent", "--log-level", settings.log_level]
     if settings.router.config:
         argv += ["--config", os.path.abspath(settings.router.config)]
+    if service.service is Service.SERVO:
+        for box in settings.obstacles:
+            argv += ["--obstacle", box]
     return argv
 
 
 def label(service: str, arm: str) -> str:
     return f"{service} ({arm})"
-
-
-def format_log(key: str, payload: bytes) -> str:
-    """``HH:MM:SS.mmm LEVEL arm/service: msg`` for one ``LogRecord`` (local time)."""
-    arm, service = parse_log(key)
-    try:
-        rec = codec.decode_message(messages.LOG_RECORD, payload)
-    except JaraArmError as exc:
-        return f"{time.strftime('%H:%M:%S')} ?       {arm}/{service}: (undecodable log record: {exc})"
-    stamp = f"{time.strftime('%H:%M:%S', time.localtime(rec.t))}.{int(rec.t * 1000.0) % 1000:03d}"
-    return f"{stamp} {rec.level:<7} {arm}/{service}: {rec.msg}"
-
-
-class LogPrinter:
-    """Prints what arrives on ``JARA_ARM/*/log/*``; polled, never a Zenoh callback."""
-
-    def __init__(self, session: zenoh.Session) -> None:
-        self._sub = session.declare_subscriber(any_arm_log(), zenoh.handlers.FifoChannel(_LOG_QUEUE))
-
-    def drain(self) -> None:
-        for _ in range(_LOGS_PER_POLL):
-            sample = self._sub.try_recv()
-            if sample is None:
-                return
-            try:
-                line = format_log(str(sample.key_expr), sample.payload.to_bytes())
-            except Exception as exc:  # anyone may publish here: never let it stop the launcher
-                log.debug("unprintable log record on %s: %s", sample.key_expr, exc)
-                continue
-            say(line)
-
-    def close(self) -> None:
-        self._sub.undeclare()
 
 
 class Readiness:
@@ -134,7 +100,7 @@ class Readiness:
 def run_up(settings: UpSettings, signals: StopSignals) -> int:
     """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
     with open_router(settings.router) as session:
-        logs = LogPrinter(session)
+        logs = LogPrinter(session, any_arm_log())
         presence = Presence(session)
         readiness = Readiness(settings, presence)
         supervisor = Supervisor([

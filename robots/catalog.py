@@ -27,7 +27,7 @@ IIWA = RobotModel(
     rated_effort=(320.0, 320.0, 176.0, 176.0, 110.0, 40.0, 40.0),
     min_accel_time=0.2,
     min_accel_time_cartesian=0.2,
-    ready_pose=(0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0),
+    ready_pose=(0.0, 0.4, 0.0, -1.74, 0.0, 1.0, 0.0),  # flange at (0.5, 0, 0.45) m, tool down
 )
 
 #: Franka Emika Panda; both fingers are one gripper axis [m per finger], 0 closed .. 0.04 open.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 import xml.etree.ElementTree as ET
 from functools import cached_property
 from pathlib import Path
@@ -22,6 +23,38 @@ class Family(enum.Enum):
     CARTESIAN = "cartesian"  # 1-3 axis gantry
     SCARA = "scara"  # 4-axis horizontal articulated
     ARTICULATED = "articulated"  # 5-7 axis vertical articulated
+
+
+@dataclasses.dataclass(frozen=True)
+class Obstacle:
+    """A fixed box in the simulated world, for the arm to run into (overload for real)."""
+
+    position: tuple[float, float, float]  # [m] centre, in the world frame (the arm base at base_position)
+    half_extents: tuple[float, float, float]  # [m] half the box's size along x, y, z
+
+    def __post_init__(self) -> None:
+        if len(self.position) != 3 or len(self.half_extents) != 3:
+            raise RobotModelError("an obstacle needs 3 position and 3 half-extent values")
+        if not all(math.isfinite(v) for v in self.position + self.half_extents):
+            raise RobotModelError("obstacle values must be finite numbers")
+        if not all(h > 0.0 for h in self.half_extents):
+            raise RobotModelError(f"obstacle half extents must be positive, got {self.half_extents}")
+
+    @classmethod
+    def parse(cls, text: str) -> "Obstacle":
+        """``x,y,z,hx,hy,hz`` [m]: centre and half extents; RobotModelError if malformed."""
+        parts = [p.strip() for p in text.split(",")]
+        if len(parts) != 6:
+            raise RobotModelError(f"obstacle {text!r}: expected x,y,z,hx,hy,hz (6 numbers in m)")
+        try:
+            v = [float(p) for p in parts]
+        except ValueError:
+            raise RobotModelError(f"obstacle {text!r}: expected x,y,z,hx,hy,hz (6 numbers in m)") from None
+        return cls((v[0], v[1], v[2]), (v[3], v[4], v[5]))
+
+    def argument(self) -> str:
+        """The ``x,y,z,hx,hy,hz`` form, for a command line."""
+        return ",".join(f"{v:g}" for v in self.position + self.half_extents)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +83,7 @@ class RobotModel:
     gripper_effort: float = 0.0  # [N or N m]
     cmd_cycle_ms: int = 1  # [ms] servo period
     base_position: tuple[float, float, float] = (0.0, 0.0, 0.0)  # [m] in the simulated world
+    obstacles: tuple[Obstacle, ...] = ()  # fixed boxes in the simulated world
 
     def __post_init__(self) -> None:
         n = len(self.arm_joints)

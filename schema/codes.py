@@ -26,13 +26,25 @@ class AlarmType(enum.Enum):
 
 
 class AlarmCode(enum.IntEnum):
-    """``Alarm.code``: 0x01-0x05 from the specification, >= 0x400 model-specific."""
+    """``Alarm.code``: 0x01-0x05 from the specification, >= 0x400 model-specific.
+
+    The model-specific codes of this implementation say which service that is
+    needed to move the arm failed, and how: 0x40s = its liveliness token was
+    deleted (the process is gone), 0x41s = its token is still up but its
+    periodic stream went stale (the process hangs). Every one is a FAULT.
+    """
 
     EMERGENCY_STOP = 0x01
     OVERLOAD = 0x02
     OVERSPEED = 0x03
     SOFT_LIMIT_JOINT = 0x04
     SOFT_LIMIT_CARTESIAN = 0x05
+    SERVO_LOST = 0x400  # the servo service's liveliness token was deleted
+    PLANNER_LOST = 0x401  # the planner service's token was deleted
+    COMMAND_LOST = 0x402  # the command service's token was deleted
+    SERVO_HUNG = 0x410  # token up, but no Servo/status lately
+    PLANNER_HUNG = 0x411  # token up, but no Planner/progress lately
+    COMMAND_HUNG = 0x412  # token up, but no Command/settings (its heartbeat) lately
 
 
 class StateBit(enum.IntFlag):

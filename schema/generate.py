@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from . import keys, messages, operations, planner, wire_types
+from . import alarms, keys, messages, operations, planner, wire_types
 from .codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from .wire_types import Member, StructType
 
@@ -48,7 +48,8 @@ def _operation(op: operations.Operation) -> dict[str, Any]:
 def build() -> dict[str, Any]:
     """The whole contract as one JSON document (JSON Schema 2020-12 plus ``x-`` tables)."""
     defs = {t.name: t.json_schema() for t in wire_types.NAMED_TYPES}
-    defs.update({m.name: m.json_schema() for m in messages.MESSAGES + planner.MESSAGES})
+    defs.update({m.name: m.json_schema()
+                 for m in messages.MESSAGES + planner.MESSAGES + alarms.MESSAGES})
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "$id": "jara_arm.schema.json",
@@ -62,12 +63,17 @@ def build() -> dict[str, Any]:
         "x-return-codes": {c.name: int(c) for c in ReturnCode},
         "x-alarm-codes": {c.name: int(c) for c in AlarmCode},
         "x-alarm-types": [t.value for t in AlarmType],
+        "x-alarm-table": [{"code": int(a.code), "name": a.code.name, "type": a.type.value,
+                           "meaning": a.meaning} for a in alarms.ALARM_TABLE],
+        "x-alarm-events": [e.value for e in alarms.AlarmEventKind],
         "x-state-bits": {b.name: int(b) for b in StateBit},
         "x-operations": {
             iface.value: {name: _operation(op) for name, op in table.items()}
             for iface, table in operations.TABLES.items()
         },
         "x-servo-operations": "JARA_ARM/<arm>/Servo/Common/<op> serves the Common table",
+        "x-monitor-operations": "JARA_ARM/<arm>/Monitor/Common/<op> serves "
+        + ", ".join(alarms.MONITOR_OPERATIONS) + " of the Common table",
         "x-rotation-tolerance": wire_types.ROTATION_TOLERANCE,
     }
 

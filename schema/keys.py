@@ -118,6 +118,27 @@ class ArmKeys:
         """``LoopHealth`` from the servo about once a second: lateness, overruns, underruns."""
         return f"{self.root}/Servo/health"
 
+    def monitor_common(self, op: str | None = None) -> str:
+        """``Monitor/Common/<op>`` (alarm monitor): ``getActiveAlarm`` and ``clearAlarms``."""
+        if op is not None:
+            operation(Interface.COMMON, op)
+        return f"{self.root}/Monitor/{Interface.COMMON.value}/{op or '*'}"
+
+    @property
+    def monitor_alarms(self) -> str:
+        """``AlarmList`` from the alarm monitor on every change and at 2 Hz; a get answers it too."""
+        return f"{self.root}/Monitor/alarms"
+
+    @property
+    def monitor_report(self) -> str:
+        """``AlarmReport`` from any service to the alarm monitor: raised, or its cause gone."""
+        return f"{self.root}/Monitor/report"
+
+    @property
+    def command_settings(self) -> str:
+        """``MotionSettings`` from the command service on change and at 4 Hz (also its heartbeat)."""
+        return f"{self.root}/Command/settings"
+
 
 def any_arm_log(service: Service | None = None) -> str:
     """Logs of every arm (``JARA_ARM/*/log/<service or *>``)."""
@@ -126,6 +147,25 @@ def any_arm_log(service: Service | None = None) -> str:
 
 def any_arm_alive() -> str:
     return f"{PREFIX}/*/alive/*"
+
+
+def any_arm_alarm() -> str:
+    """Alarm events of every arm (``JARA_ARM/*/alarm``)."""
+    return f"{PREFIX}/*/alarm"
+
+
+def any_arm_monitor_common(op: str) -> str:
+    """``JARA_ARM/*/Monitor/Common/<op>``: a get reaches the alarm monitor of every arm."""
+    operation(Interface.COMMON, op)
+    return f"{PREFIX}/*/Monitor/{Interface.COMMON.value}/{op}"
+
+
+def arm_of(key: str) -> str:
+    """The ``<arm>`` chunk of any key of this contract."""
+    parts = str(key).split("/")
+    if len(parts) < 3 or parts[0] != PREFIX:
+        raise JaraArmError(f"not a {PREFIX} key: {key!r}")
+    return check_arm(parts[1])
 
 
 def parse_alive(key: str) -> tuple[str, str]:
@@ -167,4 +207,12 @@ KEY_TABLE: tuple[tuple[str, str, str, str], ...] = (
     ("JARA_ARM/<arm>/Planner/control", "queryable (internal)", "planner",
      "ControlRequest -> {id, comment}"),
     ("JARA_ARM/<arm>/Planner/progress", "publisher (internal)", "planner", "PlannerProgress"),
+    ("JARA_ARM/<arm>/Monitor/Common/<op>", "queryable (internal)", "alarm-monitor",
+     "getActiveAlarm, clearAlarms (Common table); other ops NOT_IMPLEMENTED"),
+    ("JARA_ARM/<arm>/Monitor/alarms", "publisher and queryable (internal)", "alarm-monitor",
+     "AlarmList, on every change and at 2 Hz"),
+    ("JARA_ARM/<arm>/Monitor/report", "subscriber (internal)", "alarm-monitor",
+     "AlarmReport from the services"),
+    ("JARA_ARM/<arm>/Command/settings", "publisher (internal)", "command",
+     "MotionSettings, on change and at 4 Hz (heartbeat)"),
 )

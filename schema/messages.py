@@ -11,7 +11,7 @@ import dataclasses
 import msgpack
 
 from . import wire_types as w
-from .types import Alarm, Time
+from .types import Alarm, LimitValue, Time
 from .wire_types import Member, StructType
 
 
@@ -56,6 +56,8 @@ class ServoStatus:
     vel: tuple[float, ...]  # [rad/s or m/s] measured joint velocities
     effort: tuple[float, ...]  # [N m or N] measured joint efforts
     target: tuple[float, ...]  # [rad or m] joint target applied this cycle
+    softLimitJoint: tuple[LimitValue, ...] = ()  # [rad or m] the servo's joint soft limits, per arm axis
+    pos: tuple[float, ...] = ()  # [rad or m] measured joints this cycle (as in Servo/posFeedback)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +97,8 @@ SERVO_STATUS = StructType(ServoStatus, (
     Member("received", w.ULONG), Member("underruns", w.ULONG),
     Member("vel", _SEQ, "rad/s or m/s"), Member("effort", _SEQ, "N m or N"),
     Member("target", _SEQ, "rad or m"),
+    Member("softLimitJoint", w.LIMIT_SEQ, "rad or m", "the joint soft limits in force, per arm axis"),
+    Member("pos", _SEQ, "rad or m", "measured joints this cycle"),
 ), strict=False, doc="Internal: servo loop status, published every few cycles.")
 LOOP_HEALTH = StructType(LoopHealth, (
     Member("tm", w.TIME), Member("cycles", w.ULONG), Member("period", w.DOUBLE, "s"),

@@ -172,3 +172,19 @@ def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: s
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(interval)
+
+
+LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
+
+
+@contextlib.contextmanager
+def launched(*args: str, timeout: float = 60.0) -> Iterator[tuple[Proc, int]]:
+    """``jara-arm up`` (the full system) on a port of its own, ready; stopped afterwards."""
+    port = free_port()
+    proc = Proc([*LAUNCHER, "up", "--listen", endpoint(port), *args])
+    try:
+        proc.wait_for_line("ready", timeout=timeout)
+        yield proc, port
+    finally:
+        code = proc.stop(signal.SIGINT, timeout=20)
+        assert code == 0, f"launcher exit {code}:\n{proc.output[-4000:]}"

@@ -1,10 +1,13 @@
 """``ManipulatorCommonInterface_Common`` of the middle level, one method per IDL operation.
 
 Everything the low level owns (servo power, joint feedback, joint soft limits,
-alarms, manipulator information) is passed through to the servo's
+manipulator information) is passed through to the servo's
 ``Servo/Common/<op>``, so that the two levels never disagree: the reply is the
-servo's, decoded and re-encoded through the schema. ``getState`` is the
-command's own (``state.py``): it adds the queue and the pause to the servo's bits.
+servo's, decoded and re-encoded through the schema. The alarms are the alarm
+monitor's: ``getActiveAlarm`` and ``clearAlarms`` go to ``Monitor/Common/<op>``
+(as the servo's own do), and to the servo when the monitor does not answer.
+``getState`` is the command's own (``state.py``): it adds the queue and the
+pause to the servo's bits, and the monitor's list to the alarm bit.
 """
 
 from __future__ import annotations
@@ -30,14 +33,24 @@ class CommandCommon:
         self.core = core
 
     def clearAlarms(self) -> Reply:
-        with self.core.serial:
-            reply = self.core.servo.call(OP.clearAlarms)
-            if reply.id != ReturnCode.NG:  # the servo answered: the alarm bit read next shows it
-                self.core.state.await_servo()
+        core = self.core
+        with core.serial:
+            reply = core.monitor.call(OP.clearAlarms)
+            if reply is None:  # no alarm monitor: the servo clears its own (and says so)
+                reply = core.servo.call(OP.clearAlarms)
+                if reply.id != ReturnCode.NG:
+                    core.state.forget_alarms()
+                    core.state.await_servo()  # the alarm bit read next shows it
+                return reply
+            alarms = core.monitor.alarm_list()  # the bit read next shows the clear at once...
+            if alarms is not None:
+                core.state.on_alarms(alarms)
+                core.state.await_servo_alarm(bool(alarms.alarms))  # ...and the servo's too
             return reply
 
     def getActiveAlarm(self) -> Reply:
-        return self.core.servo.call(OP.getActiveAlarm)
+        reply = self.core.monitor.call(OP.getActiveAlarm)
+        return reply if reply is not None else self.core.servo.call(OP.getActiveAlarm)
 
     def getFeedbackPosJoint(self) -> Reply:
         return self.core.servo.call(OP.getFeedbackPosJoint)

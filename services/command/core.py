@@ -20,6 +20,8 @@ from jara_arm.robots import RobotModel
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.keys import ArmKeys
 
+from jara_arm.services.runtime.monitor_link import MonitorLink
+
 from .links import PlannerLink, ServoLink
 from .state import StateTracker
 
@@ -32,6 +34,7 @@ class Core:
     keys: ArmKeys
     servo: ServoLink
     planner: PlannerLink
+    monitor: MonitorLink
     state: StateTracker
     serial: threading.RLock = dataclasses.field(default_factory=threading.RLock)
 

@@ -17,6 +17,7 @@ from jara_arm.schema import codec
 from jara_arm.schema.keys import Service
 from jara_arm.schema.messages import STATE_MESSAGE, StateMessage
 from jara_arm.schema.operations import COMMON, MIDDLE, Interface
+from jara_arm.services.runtime.monitor_link import MonitorLink
 from jara_arm.services.runtime.rpc import InterfaceServer
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
@@ -24,6 +25,7 @@ from .cartesian import CartesianFeedback, reach
 from .common import CommandCommon
 from .core import Core
 from .feedback import JointFeedback
+from .heartbeat import HEARTBEAT_PERIOD, SettingsPublisher
 from .links import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT, PlannerLink, ServoLink
 from .middle import CommandMiddle
 from .queue import DEFAULT_CAPACITY, MotionQueue
@@ -50,27 +52,33 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
         watcher = Watcher(session, keys, tracker)
         watcher.start()
         servo = ServoLink(session, keys, servo_timeout)
-        core = Core(robot, keys, servo, PlannerLink(session, keys, plan_timeout, CONTROL_TIMEOUT), tracker)
+        core = Core(robot, keys, servo, PlannerLink(session, keys, plan_timeout, CONTROL_TIMEOUT),
+                    MonitorLink(session, keys), tracker)
         feedback = JointFeedback(session, keys, servo)
         cartesian = CartesianFeedback(robot)
         settings = Settings.defaults(robot, reach(cartesian.kinematics))
+        settings_pub = SettingsPublisher(session, keys, tracker, robot, settings)
+        settings_pub.heartbeat()
         common = InterfaceServer(session, keys.interface(Interface.COMMON), COMMON, CommandCommon(core),
                                  "command-common")
         middle = InterfaceServer(session, keys.interface(Interface.MIDDLE), MIDDLE,
-                                 CommandMiddle(core, settings, feedback, cartesian), "command-middle")
+                                 CommandMiddle(core, settings, feedback, cartesian, settings_pub.changed),
+                                 "command-middle")
         token = announce(session, keys, Service.COMMAND)
         log.info("command up: arm %s, robot %s (%d axes), queue capacity %d, reach %.3f m", arm,
                  robot.name, robot.axis_num, queue_capacity, settings.reach)
         try:
-            while not stop.wait(0.2):
+            while not stop.wait(HEARTBEAT_PERIOD):
                 if not watcher.alive:
                     raise RuntimeError("the state watcher thread died")
+                settings_pub.heartbeat()
         finally:
             token.undeclare()
             common.close()
             middle.close()
             feedback.close()
             watcher.stop()
+            settings_pub.close()
             state_pub.undeclare()
             log.info("command down")
 

@@ -9,6 +9,7 @@ pause, resume and stop go to the planner's control.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 from jara_arm.schema.codec import Reply
@@ -40,11 +41,25 @@ class CommandMiddle:
     """The Middle interface at ``JARA_ARM/<arm>/Middle/<op>``; runs on one RPC thread."""
 
     def __init__(self, core: Core, settings: Settings, feedback: JointFeedback,
-                 cartesian: CartesianFeedback) -> None:
+                 cartesian: CartesianFeedback,
+                 on_settings: Callable[[Settings], None] | None = None) -> None:
         self.core = core
-        self.settings = settings
+        self._on_settings = on_settings
+        self._settings = settings
         self._feedback = feedback
         self._cartesian = cartesian  # used on this interface's RPC thread only
+
+    @property
+    def settings(self) -> Settings:
+        return self._settings
+
+    @settings.setter
+    def settings(self, value: Settings) -> None:
+        """Every setter replaces the settings here; ``on_settings`` hears of each change."""
+        changed = value is not self._settings
+        self._settings = value
+        if changed and self._on_settings is not None:
+            self._on_settings(value)
 
     # -- motions ------------------------------------------------------------------
     def movePTPJointAbs(self, jointPoints: JointPos) -> Reply:

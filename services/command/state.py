@@ -8,7 +8,9 @@ control calls. The bits:
   silent servo counts as off (a real drive that stops talking faults).
 * 0x02 moving: the servo moves, or the queue holds motions (running, waiting or
   paused: the arm is not done with them).
-* 0x04 alarm: the servo reports an active alarm.
+* 0x04 alarm: the alarm monitor's list (``Monitor/alarms``) is not empty, or
+  the servo reports an active alarm (its own latches, which it keeps even
+  without a monitor).
 * 0x08 queue full: the queue holds ``capacity`` motions.
 * 0x10 paused.
 
@@ -26,9 +28,12 @@ import threading
 import time
 from collections.abc import Callable
 
+from jara_arm.schema.alarms import AlarmList
 from jara_arm.schema.codes import StateBit
 from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.planner import PlannerProgress
+from jara_arm.schema.types import Alarm, LimitValue
+from jara_arm.services.runtime.monitor_link import is_newer
 
 from .queue import MotionQueue
 
@@ -85,6 +90,8 @@ class StateTracker:
         self._published: tuple[int, int] | None = None
         self._planner_up = False  # its liveliness token is there
         self._progress_since_up = False  # a Planner/progress arrived since the token appeared
+        self._monitor_list: AlarmList | None = None  # the newest list of the alarm monitor
+        self._monitor_alarms: tuple[Alarm, ...] = ()  # its alarms (forgotten by a clear without it)
 
     # -- reading ------------------------------------------------------------------
     def view(self) -> StateView:
@@ -99,7 +106,7 @@ class StateTracker:
             servo_heard=heard,
             servo_on=bool(st and st.servoOn),
             moving=bool(st and st.moving) or len(q) > 0,
-            alarm=bool(st and st.alarm),
+            alarm=bool(st and st.alarm) or bool(self._monitor_alarms),
             full=q.full,
             paused=self._paused,
             queue_length=len(q),
@@ -124,6 +131,37 @@ class StateTracker:
                 self._paused = progress.paused  # first message (adopt it) or an edge
             self._planner_paused = progress.paused
             self._changed()
+
+    def on_alarms(self, alarms: AlarmList) -> None:
+        """The alarm monitor's list: bit 0x04 follows it; a new alarm ends every queued motion.
+
+        A FAULT switches the servo off and aborts the planner, a WARNING stops it:
+        either way nothing queued will run (the planner's progress says so too,
+        unless it is the one that failed).
+        """
+        with self._cond:
+            if not is_newer(alarms, self._monitor_list):
+                return  # published before the list already adopted
+            before = {a.code for a in self._monitor_alarms}
+            self._monitor_list = alarms
+            self._monitor_alarms = alarms.alarms
+            if any(a.code not in before for a in alarms.alarms) and len(self._queue):
+                log.warning("alarm raised: the motion queue (%d) is discarded", len(self._queue))
+                self._queue.discard_all()
+                self._paused = False
+            self._changed()
+
+    def forget_alarms(self) -> None:
+        """clearAlarms without an alarm monitor: its (old) list no longer counts."""
+        with self._cond:
+            self._monitor_alarms = ()
+            self._changed()
+
+    @property
+    def soft_limit_joint(self) -> tuple[LimitValue, ...]:
+        """The servo's joint soft limits from its newest status; () before the first one."""
+        st = self._status
+        return tuple(st.softLimitJoint) if st is not None else ()
 
     def on_planner_up(self) -> None:
         with self._cond:
@@ -193,6 +231,10 @@ class StateTracker:
                 if left <= 0:
                     return False
                 self._cond.wait(left)
+
+    def await_servo_alarm(self, alarm: bool, timeout: float = 0.5) -> bool:
+        """Wait until the servo's status shows ``alarm`` (it follows the monitor's list); False on timeout."""
+        return self.await_servo(lambda st: st.alarm == alarm, count=1, timeout=timeout)
 
     # -- publication ------------------------------------------------------------------
     def _changed(self) -> None:

@@ -1,4 +1,4 @@
-"""The thread that feeds the state tracker from the servo, the planner and its liveliness.
+"""The thread that feeds the state tracker from the servo, the planner, its liveliness and the alarm monitor.
 
 Zenoh only fills channels (RingChannel for the servo status, where the newest
 value is what counts; FifoChannel for planner progress and liveliness, where
@@ -14,6 +14,7 @@ import threading
 import zenoh
 
 from jara_arm.schema import codec, messages
+from jara_arm.schema.alarms import ALARM_LIST
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.planner import PLANNER_PROGRESS
@@ -25,10 +26,11 @@ log = logging.getLogger(__name__)
 POLL_PERIOD = 0.005  #: [s] between two drains: bounds the delay of a state change
 _STATUS_RING = 8  #: Servo/status messages kept between drains (100 Hz: two drains' worth and more)
 _PROGRESS_FIFO = 1024  #: Planner/progress messages kept between drains
+_ALARMS_FIFO = 64  #: Monitor/alarms lists kept between drains
 
 
 class Watcher:
-    """Subscribes to ``Servo/status``, ``Planner/progress`` and the planner's liveliness."""
+    """Subscribes to ``Servo/status``, ``Planner/progress``, the planner's liveliness and ``Monitor/alarms``."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker) -> None:
         self._tracker = tracker
@@ -37,6 +39,7 @@ class Watcher:
                                                     zenoh.handlers.FifoChannel(_PROGRESS_FIFO))
         self._planner = session.liveliness().declare_subscriber(
             keys.alive(Service.PLANNER), zenoh.handlers.FifoChannel(64), history=True)
+        self._alarms = session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(_ALARMS_FIFO))
         self._stop = threading.Event()
         self._bad = 0  # malformed messages seen (logged once per kind)
         self._thread = threading.Thread(target=self._run, name="command-watch", daemon=True)
@@ -51,7 +54,7 @@ class Watcher:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2.0)
-        for sub in (self._status, self._progress, self._planner):
+        for sub in (self._status, self._progress, self._planner, self._alarms):
             try:
                 sub.undeclare()
             except Exception:
@@ -70,6 +73,11 @@ class Watcher:
             else:
                 log.info("the planner service is up")
                 self._tracker.on_planner_up()
+        while (s := self._alarms.try_recv()) is not None:
+            try:
+                self._tracker.on_alarms(codec.decode_message(ALARM_LIST, s.payload.to_bytes()))
+            except WireError as exc:
+                self._malformed("Monitor/alarms", exc)
         while (s := self._progress.try_recv()) is not None:
             try:
                 self._tracker.on_progress(codec.decode_message(PLANNER_PROGRESS, s.payload.to_bytes()))

@@ -1,6 +1,21 @@
 """The planner service (middle level): plans motions, queues them, streams them to the servo.
 
 ``python -m jara_arm.services.planner --arm arm0 --robot iiwa --connect tcp/127.0.0.1:7447``
+
+One process with a child (``schema/planner.py`` is the contract):
+
+* ``Planner/plan``: a worker thread decodes the ``MotionRequest``, takes the
+  start joints from the streamer, has the planning process (``worker.py``)
+  plan and check it, queues it and replies ``PlanReply``. Motions are planned
+  one at a time, in order.
+* ``Planner/control``: another worker thread (never waits for planning)
+  applies pause / resume / stop / abort to the streamer and replies once any
+  braking is queued for sending.
+* The streamer thread (``streamer.py``) sends the position commands, watches
+  ``Servo/status`` and publishes ``Planner/progress``.
+
+Every thread of this process runs under SCHED_FIFO when allowed (the streamer
+highest); the CPU-heavy planning runs in the child at normal priority.
 """
 
 from __future__ import annotations
@@ -29,10 +44,12 @@ from jara_arm.schema.planner import (
     PlannerProgress,
     PlanReply,
 )
+from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
-from .planning import MotionPlanner, PlanRefused
+from .planning import PlanRefused
 from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, Streamer
+from .worker import PlanningProcess
 
 log = logging.getLogger("jara_arm.planner")
 
@@ -45,21 +62,24 @@ _REPLAN = 3
 GIL_SWITCH_INTERVAL = 0.0005
 
 
-def _reply(query: zenoh.Query, body: bytes, encoding: Encoding) -> None:
-    query.reply(query.key_expr, body, encoding=_ZENOH_ENCODING[encoding])
+def _worker(queryable: zenoh.Queryable, key: str, handle: Callable[[bytes, Encoding], bytes],
+            name: str) -> threading.Thread:
+    """A thread answering the queries of ``queryable`` one at a time, in order, on ``key``.
 
-
-def _worker(queryable: zenoh.Queryable, handle: Callable[[zenoh.Query], None], name: str) -> threading.Thread:
-    """A thread answering the queries of ``queryable`` one at a time, in order."""
+    ``handle(payload, encoding)`` gives the reply body; the reply names the concrete key
+    (a query may use wildcards, e.g. ``JARA_ARM/*/Planner/plan``).
+    """
 
     def serve() -> None:
         while True:
             try:
                 query = queryable.recv()
-            except Exception:  # undeclared: shutting down
+            except Exception:  # the session closed: shutting down
                 return
             try:
-                handle(query)
+                encoding = Encoding.of(query.encoding)
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                query.reply(key, handle(payload, encoding), encoding=_ZENOH_ENCODING[encoding])
             except Exception:
                 log.exception("could not answer %s", query.key_expr)
             finally:
@@ -73,10 +93,10 @@ def _worker(queryable: zenoh.Queryable, handle: Callable[[zenoh.Query], None], n
 class PlannerService:
     """``Planner/plan`` and ``Planner/control`` queryables, the status watch and the streamer."""
 
-    def __init__(self, session: zenoh.Session, keys: ArmKeys, model: RobotModel, lead: float,
-                 realtime_priority: int) -> None:
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, model: RobotModel, planner: PlanningProcess,
+                 lead: float, realtime_priority: int) -> None:
         self.model = model
-        self.planner = MotionPlanner(model)  # used by the plan worker only
+        self.planner = planner
         # Every command counts (SyncFIFO): block rather than drop when the link is congested.
         self._cmd_pub = session.declare_publisher(keys.pos_cmd, express=True,
                                                   congestion_control=zenoh.CongestionControl.BLOCK,
@@ -91,8 +111,12 @@ class PlannerService:
         self._control_q = session.declare_queryable(keys.planner_control,
                                                     zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
         # Planning may take a while: control queries have a thread of their own.
-        self._threads = [_worker(self._plan_q, self._answer_plan, "planner-plan"),
-                         _worker(self._control_q, self._answer_control, "planner-control")]
+        self._threads = [
+            _worker(self._plan_q, keys.planner_plan, self._answer_plan, "planner-plan"),
+            _worker(self._control_q, keys.planner_control, self._answer_control, "planner-control")]
+        # Every other thread just below the streamer: Zenoh's carry the commands, and a Python
+        # thread preempted while holding the GIL would hold the streamer back with it.
+        realtime_process(max(0, realtime_priority - 1), "planner")
 
     # ------------------------------------------------------------------ servo status
 
@@ -111,10 +135,8 @@ class PlannerService:
 
     # ------------------------------------------------------------------ queries
 
-    def _answer_plan(self, query: zenoh.Query) -> None:
-        encoding = Encoding.of(query.encoding)
-        reply = self.plan(query.payload.to_bytes() if query.payload is not None else b"", encoding)
-        _reply(query, codec.encode_message(PLAN_REPLY, reply, encoding), encoding)
+    def _answer_plan(self, payload: bytes, encoding: Encoding) -> bytes:
+        return codec.encode_message(PLAN_REPLY, self.plan(payload, encoding), encoding)
 
     def plan(self, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> PlanReply:
         """Decode, plan and queue one motion; the reply says OK or why not."""
@@ -122,7 +144,7 @@ class PlannerService:
             req = codec.decode_message(MOTION_REQUEST, payload, encoding)
         except WireError as exc:
             log.info("motion request refused: %s", exc)
-            return PlanReply(ReturnCode.VALUE_ERR, str(exc), (), 0.0)
+            return PlanReply(int(ReturnCode.VALUE_ERR), str(exc), (), 0.0)
         for _ in range(_REPLAN):
             try:
                 start, generation = self.streamer.start_point()
@@ -139,9 +161,7 @@ class PlannerService:
                      req.motion, req.op)
         return PlanReply(int(ReturnCode.STATUS_ERR), "the queue kept being stopped while planning", (), 0.0)
 
-    def _answer_control(self, query: zenoh.Query) -> None:
-        encoding = Encoding.of(query.encoding)
-        payload = query.payload.to_bytes() if query.payload is not None else b""
+    def _answer_control(self, payload: bytes, encoding: Encoding) -> bytes:
         try:
             req = codec.decode_message(CONTROL_REQUEST, payload, encoding)
             action = ControlAction(req.action)
@@ -152,7 +172,7 @@ class PlannerService:
                                                   + ", ".join(a.value for a in ControlAction))
         else:
             code, comment = self.streamer.control(action)
-        _reply(query, codec.dumps({"id": int(code), "comment": comment}, encoding), encoding)
+        return codec.dumps({"id": int(code), "comment": comment}, encoding)
 
     # ------------------------------------------------------------------ life cycle
 
@@ -166,8 +186,6 @@ class PlannerService:
                 entity.undeclare()
             except Exception:
                 pass
-        for t in self._threads:
-            t.join(timeout=0.2)
         self.streamer.close()
         for entity in (self._status_sub, self._cmd_pub, self._progress_pub):
             try:
@@ -175,23 +193,40 @@ class PlannerService:
             except Exception:
                 pass
 
+    def join(self, timeout: float) -> None:
+        """Wait for the query workers; call it once the session is closed (that ends their recv()).
+
+        A thread still inside recv() when the interpreter exits would abort the process.
+        """
+        for t in self._threads:
+            t.join(timeout)
+            if t.is_alive():
+                log.warning("query worker %s did not end", t.name)
+
 
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
          lead_ms: float = DEFAULT_LEAD * 1e3, realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
     sys.setswitchinterval(GIL_SWITCH_INTERVAL)
-    with service_session(conf, arm, Service.PLANNER) as (session, keys):
-        service = PlannerService(session, keys, robot, lead_ms * 1e-3, realtime_priority)
-        token = announce(session, keys, Service.PLANNER)
-        log.info("planner up: arm %s, robot %s (%d axes%s), lead %.0f ms", arm, robot.name,
-                 robot.axis_num, " + gripper" if robot.has_gripper else "", lead_ms)
-        try:
-            while not stop.wait(0.2):
-                if not service.alive:
-                    raise RuntimeError("the streamer thread died")
-        finally:
-            token.undeclare()
-            service.close()
-            log.info("planner down")
+    planner = PlanningProcess(robot, logging.getLevelName(logging.getLogger().level))
+    service: PlannerService | None = None
+    try:
+        with service_session(conf, arm, Service.PLANNER) as (session, keys):
+            service = PlannerService(session, keys, robot, planner, lead_ms * 1e-3, realtime_priority)
+            token = announce(session, keys, Service.PLANNER)
+            log.info("planner up: arm %s, robot %s (%d axes%s), lead %.0f ms", arm, robot.name,
+                     robot.axis_num, " + gripper" if robot.has_gripper else "", lead_ms)
+            try:
+                while not stop.wait(0.2):
+                    if not service.alive:
+                        raise RuntimeError("the streamer thread died")
+            finally:
+                token.undeclare()
+                service.close()
+                log.info("planner down")
+    finally:
+        if service is not None:
+            service.join(2.0)
+        planner.close()
 
 
 def _options(parser: argparse.ArgumentParser) -> None:

@@ -26,6 +26,13 @@ Motions, all timed by one profile along one path (``profile.py``):
 
 Joint speed limits are ``maxSpeedJoint`` capped at the model's rated speeds
 (the servo refuses anything faster as an overspeed fault).
+
+Cartesian targets: ``structFlag`` must be 0 (nearest solution; no robot here
+defines posture flags). A relative target adds its translation in the robot
+frame, applies its rotation about the robot frame axes (``R_rel · R_start``)
+and, on a 7-axis arm, adds its ``elbow`` to the start arm angle. A 7-axis
+LIN / CIRC moves the arm angle linearly along the path from the start's to the
+target's. What each family ignores of a pose is in ``families.py``.
 """
 
 from __future__ import annotations
@@ -46,7 +53,7 @@ from jara_arm.schema.types import CarPosWithElbow
 
 from . import families
 from .families import CartesianKind, CartesianRule, Orientation
-from .kinematics import Kinematics, KinematicsError, arm_to_robot, hg_to_se3
+from .kinematics import Kinematics, KinematicsError, hg_to_se3
 from .paths import CartesianArc, CartesianLine, PathGeometryError
 from .profile import (
     PathMotion,
@@ -203,7 +210,8 @@ class MotionPlanner:
             k = int(bad[0])
             p = positions[k]
             axis = int(np.flatnonzero((p < lo) | (p > hi))[0])
-            where = "target" if k == len(positions) - 1 else f"path at {100.0 * k / max(1, len(positions) - 1):.0f} %"
+            last = len(positions) - 1
+            where = "target" if k == last else f"path at {100.0 * k / max(1, last):.0f} %"
             raise PlanRefused(ReturnCode.VALUE_ERR,
                               f"{what}: the control point leaves the Cartesian soft limits ({where}): "
                               f"{'xyz'[axis]} = {p[axis]:.6g} m outside [{lo[axis]:.6g}, {hi[axis]:.6g}] "
@@ -234,6 +242,10 @@ class MotionPlanner:
     def _target(self, cp: CarPosWithElbow, start_pose: NDArray[np.float64], relative: bool,
                 rule: CartesianRule) -> NDArray[np.float64]:
         """The commanded pose (4x4, robot frame; arm frame for ``planar``) after the family rule."""
+        if cp.structFlag != 0:
+            raise PlanRefused(ReturnCode.VALUE_ERR,
+                              f"structFlag {cp.structFlag}: {self.model.name} defines no posture flags; "
+                              "use 0 (the IK solution nearest to the start joints)")
         cmd = hg_to_se3(cp.carPos)
         r0, p0 = start_pose[:3, :3], start_pose[:3, 3]
         T = np.eye(4)
@@ -271,7 +283,7 @@ class MotionPlanner:
     # ------------------------------------------------------------------ motions
 
     def _motion(self, req: MotionRequest, motion: PathMotion) -> PlannedMotion:
-        samples, q = motion.sample(self.dt)
+        _, q = motion.sample(self.dt)
         return PlannedMotion(req.motion, req.op, LineMap(motion.path), motion.profile, q, self.dt)
 
     def _joint_ptp(self, req: MotionRequest, start: Joints, target: Joints,

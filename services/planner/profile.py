@@ -227,7 +227,17 @@ def _input(limits: ProfileLimits, s: float, sd: float, sdd: float) -> ruckig.Inp
 
 def _calculate(inp: ruckig.InputParameter) -> ruckig.Trajectory:
     traj = ruckig.Trajectory(1)
-    result = ruckig.Ruckig(1).calculate(inp, traj)  # offline: no delta_time needed
+    try:
+        result = ruckig.Ruckig(1).calculate(inp, traj)  # offline: no delta_time needed
+    except ruckig.RuckigError:
+        # Ruckig 0.19 throws on some inputs exactly on a profile-type boundary (e.g. a
+        # rest-to-rest move of exactly v·aclTime, no cruise): a velocity limit 1e-12 tighter
+        # is off the boundary and changes the duration by ~1e-12 relative.
+        inp.max_velocity = [inp.max_velocity[0] * (1.0 - 1e-12)]
+        try:
+            result = ruckig.Ruckig(1).calculate(inp, traj)
+        except ruckig.RuckigError as exc:
+            raise ProfileError(f"Ruckig could not compute the profile: {exc}") from None
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
         raise ProfileError(f"Ruckig could not compute the profile: {result}")
     return traj

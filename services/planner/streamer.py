@@ -62,6 +62,7 @@ START_TOLERANCE = 1e-4
 SETTLE = 0.03
 PROGRESS_PERIOD = 0.1  # [s] progress is published at least this often
 _IDLE_WAIT = 0.005  # [s] engine period while there is nothing to send
+_LOW_DEPTH = 2.0  # [commands] an estimated FIFO depth this low while streaming is worth a warning
 
 
 class _Kind(enum.Enum):
@@ -97,14 +98,15 @@ class _Segment:
         return _Segment(self.motion, profile, self.motion.joints_along(profile), _Kind.RUN)
 
 
-def _realtime(priority: int) -> None:
-    """SCHED_FIFO for the calling thread if allowed; silently normal scheduling otherwise."""
-    if priority > 0:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            log.info("streamer runs with SCHED_FIFO priority %d", priority)
-        except (OSError, AttributeError):
-            pass
+def _realtime_thread(priority: int) -> None:
+    """SCHED_FIFO at ``priority`` for the calling thread (0: leave it alone)."""
+    if priority <= 0:
+        return
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        log.info("streamer runs with SCHED_FIFO priority %d", priority)
+    except (OSError, AttributeError):
+        log.warning("streamer without real-time priority (no permission?): expect more jitter")
 
 
 class Streamer:
@@ -209,6 +211,8 @@ class Streamer:
                 self._abort("abort requested")
                 result = "OK: motion aborted, queue discarded"
         self._wake.set()
+        if result.startswith("OK: ignored"):
+            log.info("%s %s", action.value, result[4:])
         return ReturnCode.OK, result
 
     def _pause(self, now: float) -> str:
@@ -282,7 +286,7 @@ class Streamer:
         self._inflight.clear()
         self._active = self._held = None
         self._paused = False
-        self._tail = None
+        self._tail = self._last_sent = None
         self._generation += 1
         self._busy_until = 0.0
         if discarded:
@@ -296,10 +300,6 @@ class Streamer:
         """Nothing queued, sent or due (lock held)."""
         return (self._active is None and self._held is None and not self._queue and not self._inflight
                 and now >= self._busy_until + settle)
-
-    def progress(self, now: float | None = None) -> PlannerProgress:
-        with self._lock:
-            return self._progress(time.time() if now is None else now)
 
     def _progress(self, now: float) -> PlannerProgress:
         ids = [i for i, _ in self._inflight]
@@ -318,33 +318,33 @@ class Streamer:
     # ------------------------------------------------------------------ engine thread
 
     def run(self) -> None:
-        _realtime(self._rt_priority)
+        _realtime_thread(self._rt_priority)
         last_progress: PlannerProgress | None = None
         last_progress_at = 0.0
-        last_now = time.time()
+        last_now = last_late_log = time.time()
         while not self._stop_event.is_set():
             try:
                 status = self._poll_status()
                 now = time.time()
-                if now - last_now > 0.006 and self._active is not None:
-                    log.warning("DEBUG streamer gap %.1f ms depth %.1f", (now - last_now) * 1e3, self._fifo.depth(now))
-                last_now = now
+                gap, last_now = now - last_now, now
                 with self._lock:
                     if status is not None:
                         self._on_status(status, now)
                     elif self._has_work(now) and now - self._status_at > STATUS_TIMEOUT:
                         self._abort(f"no status from the servo for {STATUS_TIMEOUT:.1f} s")
+                    depth = self._fifo.depth(now)
+                    low = self._active is not None and self._active.k > 1 and depth < _LOW_DEPTH
                     out = self._fill(now)
                     while self._inflight and self._inflight[0][1] <= now:
                         self._last_done = self._inflight.popleft()[0]
                     progress = self._progress(now)
                     busy = self._active is not None or (self._queue and not self._paused)
-                t_pub = time.time()
                 for payload in out:
                     self._publish(payload)
-                t_pub2 = time.time()
-                if t_pub2 - now > 0.004:
-                    log.warning("DEBUG iteration: fill %.1f ms publish %d in %.1f ms", (t_pub - now) * 1e3, len(out), (t_pub2 - t_pub) * 1e3)
+                if low and now - last_late_log > 1.0:
+                    log.warning("servo FIFO nearly empty mid-motion (%.1f commands estimated, %.1f ms "
+                                "since the streamer's previous round)", depth, gap * 1e3)
+                    last_late_log = now
                 same = (last_progress is not None
                         and dataclasses.replace(progress, tm=last_progress.tm) == last_progress)
                 if not same or now - last_progress_at >= PROGRESS_PERIOD:
@@ -356,10 +356,7 @@ class Streamer:
                     self._abort("internal error")
                 busy = False
             if busy:
-                t_sl = time.time()
                 time.sleep(self.period)
-                if time.time() - t_sl > 0.004:
-                    log.warning("DEBUG sleep took %.1f ms", (time.time() - t_sl) * 1e3)
             else:
                 self._wake.wait(_IDLE_WAIT)
                 self._wake.clear()
@@ -378,7 +375,8 @@ class Streamer:
             self._abort("the servo raised an alarm")
         elif self._underruns is not None and st.underruns > self._underruns and moving:
             self._abort(f"the servo ran out of position commands ({st.underruns - self._underruns} "
-                        "underruns)")
+                        f"underruns; {self._fifo.depth(now):.0f} estimated in its FIFO, status "
+                        f"{(now - st.tm.to_seconds()) * 1e3:.1f} ms old)")
         self._underruns = st.underruns
 
     def _fill(self, now: float) -> list[bytes]:

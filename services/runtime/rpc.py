@@ -66,6 +66,7 @@ class InterfaceServer:
         if missing:
             raise TypeError(f"{type(handler).__name__} lacks operations {missing}")
         self._table, self._handler = table, handler
+        self._base = key_all.rsplit("/", 1)[0]  # replies name the concrete key, e.g. for JARA_ARM/*/... queries
         self._queryable = session.declare_queryable(key_all, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
         self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
         self._thread.start()
@@ -98,7 +99,8 @@ class InterfaceServer:
                 log.exception("%s produced a reply that cannot be encoded", name)
                 body = codec.dumps({"id": int(ReturnCode.NG),
                                     "comment": f"internal error in {name}: {exc}"}, encoding)
-        query.reply(query.key_expr, body, encoding=_ZENOH_ENCODING[encoding])
+        key = f"{self._base}/{name}" if op is not None else query.key_expr
+        query.reply(key, body, encoding=_ZENOH_ENCODING[encoding])
 
     def close(self) -> None:
         try:

@@ -4,6 +4,16 @@ Runs on its own thread and is the only code that touches the world. Other
 threads change its state only through :meth:`ServoLoop.call`, which runs a
 function at the next cycle boundary; reads use the values the loop publishes
 every cycle (assigning a Python attribute is atomic).
+
+Alarms: the alarm monitor owns the arm's list (``schema/alarms.py``). What the
+servo detects itself (an e-stop put, a command that jumps or leaves the joint
+soft limits) it acts on in the same cycle and keeps as a *latch*, reported to
+the monitor on ``Monitor/report`` (again when its cause has gone, and again
+every ``REPORT_AGAIN`` until the monitor lists it). The servo follows the
+monitor's ``Monitor/alarms``: an alarm that appears there stops the arm (a
+FAULT also switches the servo off), and a latch is released once the monitor
+that listed it no longer does. While any latch or any listed alarm is active,
+position commands are dropped.
 """
 
 from __future__ import annotations
@@ -24,12 +34,15 @@ import numpy as np
 import zenoh
 
 from jara_arm.robots import RobotModel
+from jara_arm.robots import Obstacle
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
+from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmList, AlarmReport, format_code
 from jara_arm.schema.codes import AlarmCode, AlarmType, StateBit
 from jara_arm.schema.errors import WireError
-from jara_arm.schema.keys import ArmKeys
+from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
+from jara_arm.services.runtime.monitor_link import is_newer
 
 from .braking import Braking
 from .world import World
@@ -46,6 +59,13 @@ BRAKE_JERK_TIME = 0.02
 REST_SPEED = 1e-3
 #: Tracking tolerance when deciding that a soft-limit cause has gone [rad or m].
 LIMIT_TOLERANCE = 1e-3
+#: A stop in front of a joint soft limit may decelerate at up to this multiple of an
+#: axis' max_accel (rated speed / min accel time) [-]: the peak deceleration of the
+#: planner's S-curve at the min accel time (2 v / T), so that a planned motion that
+#: ends on a limit is never taken for one that would overrun it.
+LIMIT_STOP_ACCEL = 2.0
+#: Slack of the "stops before the soft limit" check, for rounding only [rad or m].
+_LIMIT_EPS = 1e-9
 #: Behind schedule by more than this, the loop stops catching up and restarts its clock [s].
 RESYNC_AFTER = 0.1
 STATUS_EVERY = 10  # cycles between ServoStatus messages
@@ -55,6 +75,12 @@ _PR_SET_TIMERSLACK = 29
 DEFAULT_RT_PRIORITY = 40
 #: Other threads of the servo process hand the GIL back to the loop this often [s].
 GIL_SWITCH_INTERVAL = 0.0005
+#: A latch the alarm monitor has not listed yet is reported again this often [s]
+#: (the monitor was down or restarted and lost it).
+REPORT_AGAIN = 0.5
+#: After a stop for an alarm, a target this far from the measured joints means the
+#: arm is blocked (an obstacle): the servo then holds it where it is, not pushing on [rad or m].
+RELAX_TOLERANCE = 0.01
 
 
 def _realtime_thread(priority: int) -> None:
@@ -78,6 +104,16 @@ def _realtime_thread(priority: int) -> None:
 
 
 @dataclasses.dataclass
+class _Latch:
+    """An alarm the servo detected itself; it keeps the arm stopped until the monitor clears it."""
+
+    alarm: Alarm
+    present: bool  # the cause was present when last reported
+    acked: Time | None = None  # ``started`` of the monitor whose list held it; None: not listed yet
+    reported_at: float = -float("inf")  # [s] monotonic time of the last report
+
+
+@dataclasses.dataclass
 class _Stats:
     """Timing of the current health window."""
 
@@ -91,16 +127,18 @@ class ServoLoop:
     """The low-level controller of one arm (see module docstring)."""
 
     def __init__(self, model: RobotModel, session: zenoh.Session, keys: ArmKeys,
-                 realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+                 realtime_priority: int = DEFAULT_RT_PRIORITY, obstacles: tuple[Obstacle, ...] = ()) -> None:
         self.model = model
         self._rt_priority = realtime_priority
         self.dt = model.cmd_cycle
-        self.world = World(model)
+        self.world = World(model, obstacles)
         n = model.dof
         self._vmax = np.array(list(model.rated_speed) + ([model.gripper_speed] if model.has_gripper else []))
         min_acc_t = model.min_accel_time
         self._amax = self._vmax / min_acc_t
         self._jmax = self._amax / BRAKE_JERK_TIME
+        self._limit_amax = self._amax * LIMIT_STOP_ACCEL
+        self._limit_jmax = self._limit_amax / BRAKE_JERK_TIME
         grip = model.gripper_limits
         self._hard = list(model.hard_limits) + ([grip] if grip else [])
         self.soft_limits: tuple[LimitValue, ...] = model.hard_limits
@@ -111,7 +149,9 @@ class ServoLoop:
         self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
         self.state_bits = 0
         self.servo_on = False
-        self.alarms: dict[int, Alarm] = {}
+        self.latches: dict[int, _Latch] = {}  # by code: what the servo detected itself
+        self.monitor_alarms: tuple[Alarm, ...] = ()  # the alarm monitor's newest list
+        self._monitor_list: AlarmList | None = None
 
         self._fifo: collections.deque[np.ndarray] = collections.deque()
         self._braking: Braking | None = None
@@ -122,6 +162,8 @@ class ServoLoop:
 
         self._cmd_sub = session.declare_subscriber(keys.pos_cmd, zenoh.handlers.FifoChannel(1 << 16))
         self._estop_sub = session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64))
+        self._alarms_sub = session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256))
+        self._report_pub = session.declare_publisher(keys.monitor_report, express=True)
         self._fb_pub = session.declare_publisher(keys.pos_feedback, express=True)
         self._status_pub = session.declare_publisher(keys.servo_status, express=True)
         self._health_pub = session.declare_publisher(keys.servo_health)
@@ -137,7 +179,8 @@ class ServoLoop:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5.0)
-        for entity in (self._cmd_sub, self._estop_sub, self._fb_pub, self._status_pub, self._health_pub):
+        for entity in (self._cmd_sub, self._estop_sub, self._alarms_sub, self._report_pub, self._fb_pub,
+                       self._status_pub, self._health_pub):
             try:
                 entity.undeclare()
             except Exception:
@@ -147,6 +190,16 @@ class ServoLoop:
     @property
     def alive(self) -> bool:
         return self._thread.is_alive()
+
+    @property
+    def alarmed(self) -> bool:
+        """A latch or an alarm listed by the monitor is active: the arm must not move."""
+        return bool(self.latches or self.monitor_alarms)
+
+    @property
+    def alarms(self) -> tuple[Alarm, ...]:
+        """The servo's own latches (what ``getActiveAlarm`` says when the monitor is silent)."""
+        return tuple(latch.alarm for latch in list(self.latches.values()))
 
     def call(self, fn: Callable[[], T], timeout: float = 1.0) -> T:
         """Run ``fn`` on the loop thread at the next cycle boundary and return its result."""
@@ -198,6 +251,11 @@ class ServoLoop:
             while self._estop_sub.try_recv() is not None:
                 pass
             self.emergency_stop()
+        while (sample := self._alarms_sub.try_recv()) is not None:
+            try:
+                self.adopt_monitor_list(codec.decode_message(ALARM_LIST, sample.payload.to_bytes()))
+            except WireError as exc:
+                log.error("ignored a malformed alarm list from the monitor: %s", exc)
         while self._calls:
             fn, fut = self._calls.popleft()
             try:
@@ -213,12 +271,14 @@ class ServoLoop:
         pos_list = pos.tolist()
         self.state_bits = self._bits(vel.tolist())
         self._fb_pub.put(messages.timed_joint_pos_payload(tm_ns, pos_list))
+        if self.latches:  # every cycle: the monitor learns at once that a cause has gone
+            self._report_latches()
         if k % STATUS_EVERY == 0:
             self._publish_status(Time(tm_ns // 1_000_000_000, tm_ns % 1_000_000_000))
 
     def _take_commands(self) -> None:
         """Move what arrived into the FIFO (or drop it while commands are not accepted)."""
-        accepting = self.servo_on and not self.alarms
+        accepting = self.servo_on and not self.alarmed
         while (sample := self._cmd_sub.try_recv()) is not None:
             self.received += 1
             if not accepting:
@@ -242,13 +302,15 @@ class ServoLoop:
             self._cmd_moving = not done
             if done:
                 self._braking = None
+                if self.alarmed:
+                    self._hold_where_it_is()
             return
-        if self.servo_on and not self.alarms and self._fifo:
+        if self.servo_on and not self.alarmed and self._fifo:
             cmd = self._fifo.popleft()
             self.consumed += 1
             self._follow(cmd)
             return
-        if self._cmd_moving and self.servo_on and not self.alarms and np.any(np.abs(self.qd) > REST_SPEED):
+        if self._cmd_moving and self.servo_on and not self.alarmed and np.any(np.abs(self.qd) > REST_SPEED):
             self.underruns += 1
             self._stats.underruns += 1
             self._interrupted = True
@@ -260,6 +322,23 @@ class ServoLoop:
             self.qd = np.zeros_like(self.qd)
             self.qdd = np.zeros_like(self.qdd)
             self._cmd_moving = False
+
+    def _hold_where_it_is(self) -> None:
+        """After a stop for an alarm: if the arm did not follow (blocked), hold it where it is.
+
+        Otherwise the drives would keep pushing the arm into whatever stopped it
+        (at up to their peak effort) and an overload could never go away. The
+        target steps to where the arm already is, so nothing moves. The gripper
+        axis keeps its target: it may be holding a part.
+        """
+        n = self.model.axis_num
+        gap = np.abs(self.q[:n] - self.fb_pos[:n])
+        if np.any(gap > RELAX_TOLERANCE):
+            i = int(np.argmax(gap))
+            log.warning("the arm stopped %.3g away from its target (J%d): blocked; holding it where it is",
+                        gap[i], i + 1)
+            self.q = self.q.copy()
+            self.q[:n] = self.fb_pos[:n]
 
     def _inside_soft_limits(self, q: np.ndarray) -> np.ndarray:
         """``q`` with the arm axes clamped into the soft limits.
@@ -303,34 +382,124 @@ class ServoLoop:
                         f"above {OVERSPEED_MARGIN:g} x its rated {self._vmax[i]:.3g}; not applied")
             return
         qd = step / self.dt
-        self.qdd = (qd - self.qd) / self.dt
-        self.q, self.qd = cmd, qd
+        qdd = (qd - self.qd) / self.dt
+        i = self._overruns_soft_limit(cmd, qd, qdd)
+        if i is not None:
+            lim = self.soft_limits[i]
+            self._raise(AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING,
+                        f"position command J{i + 1}={cmd[i]:.6g} at {qd[i]:.3g} per s could not stop "
+                        f"before the joint soft limit [{lim.lower:.6g}, {lim.upper:.6g}]; not applied")
+            return
+        self.q, self.qd, self.qdd = cmd, qd, qdd
         self._cmd_moving = True
 
+    def _limit_stop(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> Braking:
+        """The shortest stop of every axis (see LIMIT_STOP_ACCEL), not synchronized."""
+        return Braking(q, qd, qdd, self._limit_amax, self._limit_jmax, self.dt, synchronized=False)
+
+    def _overruns_soft_limit(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> int | None:
+        """The first arm axis whose shortest stop from (q, qd, qdd) would leave its soft limit.
+
+        Checked for every command, so that the stop from the last applied one
+        always ends inside: a stream heading through a limit is stopped in
+        front of it, smoothly. The exact stop (Ruckig) is computed only for the
+        axes a cheap upper bound of the stopping distance brings near a limit.
+        """
+        n = self.model.axis_num
+        lower = np.array([lim.lower for lim in self.soft_limits])
+        upper = np.array([lim.upper for lim in self.soft_limits])
+        v, a = np.abs(qd[:n]), self._limit_amax[:n]
+        reach = (v + a * BRAKE_JERK_TIME) ** 2 / (2 * a) + 2 * BRAKE_JERK_TIME * (v + a * BRAKE_JERK_TIME)
+        near = np.flatnonzero((q[:n] + reach > upper) | (q[:n] - reach < lower))
+        if near.size == 0:
+            return None
+        # Unsynchronized: every axis stops on its own, so only the near ones need computing.
+        low, high = Braking(q[near], qd[near], qdd[near], self._limit_amax[near], self._limit_jmax[near],
+                            self.dt, synchronized=False).extrema()
+        beyond = (high > upper[near] + _LIMIT_EPS) | (low < lower[near] - _LIMIT_EPS)
+        return int(near[np.argmax(beyond)]) if beyond.any() else None
+
     # -- actions (loop thread only: call them through call() from elsewhere) -----
-    def brake(self) -> None:
-        """Controlled stop from the commanded state; the FIFO is emptied."""
+    def brake(self, before_limit: bool = False) -> None:
+        """Controlled stop from the commanded state; the FIFO is emptied.
+
+        ``before_limit``: the shortest stop of each axis, which ends inside the
+        joint soft limits (every applied command was checked for it).
+        """
         self._fifo.clear()
         if self._braking is None and np.any(np.abs(self.qd) > 0.0):
-            self._braking = Braking(self.q, self.qd, self.qdd, self._amax, self._jmax, self.dt)
+            if before_limit:
+                self._braking = self._limit_stop(self.q, self.qd, self.qdd)
+            else:
+                self._braking = Braking(self.q, self.qd, self.qdd, self._amax, self._jmax, self.dt)
 
     def emergency_stop(self) -> None:
         log.error("emergency stop")
         self._raise(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, "emergency stop")
 
     def _raise(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
-        if int(code) not in self.alarms:
-            self.alarms[int(code)] = Alarm(int(code), kind, description)
-            log.error("alarm 0x%02x %s: %s", code, kind.value, description)
-        self.brake()
+        """Stop (and for a FAULT switch off) now; latch the alarm and report it to the monitor."""
+        self._stop_for(int(code), kind)
+        if int(code) not in self.latches:
+            latch = _Latch(Alarm(int(code), kind, description), self._cause_present(int(code)))
+            self.latches[int(code)] = latch
+            log.error("alarm %s %s: %s", format_code(code), kind.value, description)
+            self._report(latch)
+
+    def _stop_for(self, code: int, kind: AlarmType) -> None:
+        self.brake(before_limit=code == AlarmCode.SOFT_LIMIT_JOINT)
+        if self._braking is None:  # already at rest: still, do not push on if blocked
+            self._hold_where_it_is()
         if kind is AlarmType.FAULT and self.servo_on:
             self.servo_on = False
-            log.warning("servo off after %s fault", code.name)
+            log.warning("servo off after the %s fault", format_code(code))
+
+    def _report(self, latch: _Latch) -> None:
+        report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value)
+        latch.reported_at = time.monotonic()
+        try:
+            self._report_pub.put(codec.encode_message(ALARM_REPORT, report))
+        except Exception as exc:  # a report that cannot be sent is sent again later
+            log.warning("could not report alarm %s to the monitor: %s", format_code(latch.alarm.code), exc)
+
+    def _report_latches(self) -> None:
+        """Report every latch whose cause came or went, and again those not listed yet."""
+        now = time.monotonic()
+        for code, latch in list(self.latches.items()):
+            present = self._cause_present(code)
+            if present != latch.present or (latch.acked is None and now - latch.reported_at >= REPORT_AGAIN):
+                latch.present = present
+                self._report(latch)
+
+    def adopt_monitor_list(self, alarms: AlarmList) -> None:
+        """Follow the monitor's list: stop for what is new there, release the latches it cleared."""
+        if not is_newer(alarms, self._monitor_list):
+            return  # published before the one already adopted
+        previous = self._monitor_list
+        self._monitor_list = alarms
+        listed = {a.code for a in alarms.alarms}
+        for code, latch in list(self.latches.items()):
+            if code in listed:
+                latch.acked = alarms.started
+            elif latch.acked == alarms.started:
+                del self.latches[code]
+                log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
+            elif previous is not None and alarms.started != previous.started:
+                latch.acked = None  # a new monitor: tell it at once
+                latch.reported_at = -float("inf")
+        before = {a.code for a in self.monitor_alarms}
+        self.monitor_alarms = alarms.alarms
+        for alarm in alarms.alarms:
+            if alarm.code not in before and alarm.code not in self.latches:
+                log.warning("alarm %s %s from the alarm monitor: stopping the arm (%s)",
+                            format_code(alarm.code), alarm.type.value, alarm.description)
+                self._stop_for(alarm.code, alarm.type)
 
     def servo_on_now(self) -> str | None:
         """Servo on; returns why not, or None."""
-        if self.alarms:
-            return "alarms active: " + ", ".join(f"0x{c:02x}" for c in self.alarms) + "; clear them first"
+        if self.alarmed:
+            codes = sorted({*self.latches, *(a.code for a in self.monitor_alarms)})
+            return "alarms active: " + ", ".join(format_code(c) for c in codes) + "; clear them first"
         if self._braking is not None:
             return "the arm is still stopping"
         if not self.servo_on:
@@ -351,29 +520,33 @@ class ServoLoop:
         self.brake()
 
     def clear_alarms_now(self) -> tuple[list[Alarm], list[Alarm]]:
-        """Clear alarms whose cause has gone; returns (cleared, still active)."""
-        cleared, kept = [], []
-        for code, alarm in list(self.alarms.items()):
+        """Without an alarm monitor: clear the latches whose cause has gone, forget the monitor's list.
+
+        Returns (cleared, still active).
+        """
+        cleared, kept = list(self.monitor_alarms), []
+        self.monitor_alarms = ()
+        for code, latch in list(self.latches.items()):
             if self._cause_present(code):
-                kept.append(alarm)
+                kept.append(latch.alarm)
             else:
-                cleared.append(self.alarms.pop(code))
-        for a in cleared:
-            log.info("alarm 0x%02x cleared", a.code)
+                cleared.append(self.latches.pop(code).alarm)
+                log.info("alarm %s cleared", format_code(code))
         return cleared, kept
 
     def _cause_present(self, code: int) -> bool:
+        """Whether the cause of the servo's own alarm ``code`` is still there (the arm still stopping, too)."""
+        if self._braking is not None:
+            return True
         if code == AlarmCode.SOFT_LIMIT_JOINT:
             return any(not lim.lower - LIMIT_TOLERANCE <= q <= lim.upper + LIMIT_TOLERANCE
                        for q, lim in zip(self.fb_pos, self.soft_limits))
-        if code == AlarmCode.OVERSPEED:
-            return self._braking is not None
-        return False  # emergency stop: a put is an event, gone once acknowledged
+        return False  # emergency stop: a put is an event; a jump: the command was not applied
 
     def set_soft_limits_now(self, limits: tuple[LimitValue, ...]) -> str | None:
         if self.state_bits & StateBit.MOVING:
             return "the arm is moving"
-        if self.alarms:
+        if self.alarmed:
             return "an alarm is active"
         self.soft_limits = limits
         log.info("joint soft limits set: %s", [(lim.lower, lim.upper) for lim in limits])
@@ -387,15 +560,16 @@ class ServoLoop:
         if (self._braking is not None or self._fifo or self._cmd_moving
                 or max(abs(v) for v in vel) > REST_SPEED):
             bits |= StateBit.MOVING
-        if self.alarms:
+        if self.alarmed:
             bits |= StateBit.ALARM
         return int(bits)
 
     def _publish_status(self, tm: Time) -> None:
         st = messages.ServoStatus(
-            tm, self.servo_on, bool(self.state_bits & StateBit.MOVING), bool(self.alarms),
+            tm, self.servo_on, bool(self.state_bits & StateBit.MOVING), self.alarmed,
             len(self._fifo), self.consumed, self.received, self.underruns,
-            tuple(self.fb_vel.tolist()), tuple(self.fb_eff.tolist()), tuple(self.q.tolist()))
+            tuple(self.fb_vel.tolist()), tuple(self.fb_eff.tolist()), tuple(self.q.tolist()),
+            self.soft_limits, tuple(self.fb_pos.tolist()))
         self._status_pub.put(codec.encode_message(messages.SERVO_STATUS, st))
 
     def _publish_health(self) -> None:

@@ -12,13 +12,14 @@ from collections.abc import Sequence
 
 import zenoh
 
-from jara_arm.robots import RobotModel
+from jara_arm.robots import Obstacle, RobotModel, RobotModelError
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import Service
-from jara_arm.schema.operations import COMMON
+from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
+from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
 from jara_arm.services.runtime.rpc import InterfaceServer, ok, refuse
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
@@ -27,23 +28,44 @@ from .loop import DEFAULT_RT_PRIORITY, ServoLoop
 log = logging.getLogger("jara_arm.servo")
 
 
-class ServoCommon:
-    """``ManipulatorCommonInterface_Common`` of the low level, one method per IDL operation."""
+#: Comment added to replies made without the alarm monitor.
+NO_MONITOR = "the alarm monitor does not answer: the servo's own alarms only"
 
-    def __init__(self, loop: ServoLoop) -> None:
+
+class ServoCommon:
+    """``ManipulatorCommonInterface_Common`` of the low level, one method per IDL operation.
+
+    ``getActiveAlarm`` and ``clearAlarms`` are the alarm monitor's (forwarded);
+    without a monitor they fall back to the servo's own latches and say so.
+    """
+
+    def __init__(self, loop: ServoLoop, monitor: MonitorLink) -> None:
         self.loop = loop
         self.model = loop.model
+        self.monitor = monitor
 
     def clearAlarms(self) -> Reply:
-        cleared, kept = self.loop.call(self.loop.clear_alarms_now)
-        if kept:
-            return refuse(ReturnCode.STATUS_ERR, "cause still present, not cleared: " + "; ".join(
-                f"0x{a.code:02x} {a.description}" for a in kept)
-                + (f" (cleared: {', '.join(f'0x{a.code:02x}' for a in cleared)})" if cleared else ""))
-        return ok("OK" if cleared else "OK: no active alarm")
+        reply = self.monitor.call(OP.clearAlarms)
+        if reply is None:
+            cleared, kept = self.loop.call(self.loop.clear_alarms_now)
+            fallback = clear_reply(cleared, kept)
+            return Reply(fallback.id, f"{fallback.comment} ({NO_MONITOR})")
+        self._refresh()  # the latches the monitor cleared are released before the reply
+        return reply
 
     def getActiveAlarm(self) -> Reply:
-        return ok(alarms=tuple(self.loop.alarms.values()))
+        reply = self.monitor.call(OP.getActiveAlarm)
+        if reply is None:
+            return ok(f"OK ({NO_MONITOR})", alarms=self.loop.alarms)
+        return reply
+
+    def _refresh(self) -> bool:
+        """Adopt the monitor's current list now (not when its publication arrives); False if silent."""
+        alarms = self.monitor.alarm_list()
+        if alarms is None:
+            return False
+        self.loop.call(lambda: self.loop.adopt_monitor_list(alarms))
+        return True
 
     def getFeedbackPosJoint(self) -> Reply:
         return ok(pos=tuple(self.loop.fb_pos.tolist()))
@@ -63,6 +85,8 @@ class ServoCommon:
 
     def servoON(self) -> Reply:
         why = self.loop.call(self.loop.servo_on_now)
+        if why and self.loop.monitor_alarms and self._refresh():
+            why = self.loop.call(self.loop.servo_on_now)  # alarms just cleared through another interface
         return refuse(ReturnCode.STATUS_ERR, f"servoON refused: {why}") if why else ok()
 
     def setSoftLimitJoint(self, softLimit: tuple[LimitValue, ...]) -> Reply:
@@ -85,14 +109,17 @@ def check_soft_limits(limits: Sequence[LimitValue], model: RobotModel) -> None:
 
 
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
-         realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+         realtime_priority: int = DEFAULT_RT_PRIORITY, obstacle: Sequence[Obstacle] | None = None) -> None:
     with service_session(conf, arm, Service.SERVO) as (session, keys):
-        loop = ServoLoop(robot, session, keys, realtime_priority)
+        loop = ServoLoop(robot, session, keys, realtime_priority, tuple(obstacle or ()))
         loop.start()
-        server = InterfaceServer(session, keys.servo_common(), COMMON, ServoCommon(loop), "servo-rpc")
+        server = InterfaceServer(session, keys.servo_common(), COMMON,
+                                 ServoCommon(loop, MonitorLink(session, keys)), "servo-rpc")
         token = announce(session, keys, Service.SERVO)
         log.info("servo up: arm %s, robot %s (%d axes%s), cycle %d ms", arm, robot.name,
                  robot.axis_num, " + gripper" if robot.has_gripper else "", robot.cmd_cycle_ms)
+        for box in loop.world.obstacles:
+            log.info("obstacle: box at %s m, half extents %s m", box.position, box.half_extents)
         try:
             while not stop.wait(0.2):
                 if not loop.alive:
@@ -104,10 +131,21 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
             log.info("servo down")
 
 
+def obstacle_argument(text: str) -> Obstacle:
+    """argparse type of ``--obstacle``: ``x,y,z,hx,hy,hz`` [m]."""
+    try:
+        return Obstacle.parse(text)
+    except RobotModelError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--realtime-priority", type=int, default=DEFAULT_RT_PRIORITY,
                         metavar="N", help="SCHED_FIFO priority of the loop thread, 1..99; 0 for "
                         f"normal scheduling (default: {DEFAULT_RT_PRIORITY})")
+    parser.add_argument("--obstacle", type=obstacle_argument, action="append", metavar="X,Y,Z,HX,HY,HZ",
+                        help="a fixed box in the simulated world: centre and half extents [m] in the "
+                        "world frame (repeatable; added to the robot model's own obstacles)")
 
 
 def run(argv: Sequence[str] | None = None) -> int:

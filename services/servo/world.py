@@ -9,18 +9,24 @@ import numpy as np
 import pybullet
 import pybullet_data
 
-from jara_arm.robots import RobotModel
+from collections.abc import Sequence
+
+from jara_arm.robots import Obstacle, RobotModel
 
 #: Position-servo gains of PyBullet's motor constraint: the joint closes most of
 #: its position error within one step, with the commanded velocity fed forward.
 POSITION_GAIN = 0.8  # [-]
 VELOCITY_GAIN = 1.0  # [-]
+#: Peak effort of the simulated drives as a multiple of their rating [-]: servo
+#: drives deliver 2-3x their rated torque for short times, so an arm pushed
+#: against an obstacle shows an effort above its rating (the overload alarm).
+PEAK_EFFORT = 2.0
 
 
 class World:
-    """One robot, fixed base, gravity on, time step = the servo period."""
+    """One robot, fixed base, gravity on, time step = the servo period, fixed obstacle boxes."""
 
-    def __init__(self, model: RobotModel) -> None:
+    def __init__(self, model: RobotModel, obstacles: Sequence[Obstacle] = ()) -> None:
         self.model = model
         self._pb = pybullet.connect(pybullet.DIRECT)
         pybullet.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=self._pb)
@@ -38,12 +44,23 @@ class World:
         self._joints = self._arm + self._grip
         self._axis_of_joint = list(range(model.axis_num)) + [model.axis_num] * len(self._grip)
         self._measured = self._arm + self._grip[:1]  # one joint per wire axis
-        self._forces = list(model.rated_effort) + [model.gripper_effort] * len(self._grip)
+        self._forces = [PEAK_EFFORT * f for f in
+                        list(model.rated_effort) + [model.gripper_effort] * len(self._grip)]
+        self.obstacles = tuple(model.obstacles) + tuple(obstacles)
+        for box in self.obstacles:
+            self._add_box(box)
         for j in self._joints:  # PyBullet's default joint motors would fight ours
             pybullet.changeDynamics(self.robot, j, linearDamping=0, angularDamping=0,
                                     jointDamping=0.0, physicsClientId=self._pb)
         home = list(model.ready_pose) + ([model.gripper_limits.upper] if model.has_gripper else [])
         self.reset(np.array(home))
+
+    def _add_box(self, box: Obstacle) -> None:
+        """A static (massless) box that collides with every link of the robot."""
+        shape = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=list(box.half_extents),
+                                              physicsClientId=self._pb)
+        pybullet.createMultiBody(baseMass=0.0, baseCollisionShapeIndex=shape,
+                                 basePosition=list(box.position), physicsClientId=self._pb)
 
     def reset(self, q: np.ndarray) -> None:
         """Place the arm at ``q`` [rad or m] at rest (start-up only)."""

@@ -1,0 +1,304 @@
+"""Motion benchmark: a servo and a planner process (iiwa), driven over Zenoh as the command service would.
+
+Measures, and prints one line each:
+
+* reply -> motion: from the ``Planner/plan`` reply to the first feedback sample
+  that has left the start (PTP from rest, 50 %), median / max over ``--n`` moves;
+* planning time to the first streamed command, from the request, for a 0.5 m
+  LIN and a half-circle CIRC (radius 0.15 m) at 0.25 m/s, and the planner's
+  own planning time (its log);
+* deviation of those moves from the ideal line / circle: planned (FK of the
+  position commands) and executed (FK of the feedback);
+* pause latency: from the ``pause`` reply to the servo consuming the first
+  braking command;
+* PTP duration vs the time-optimal bound: Ruckig's synchronised time-optimal
+  duration for the same per-axis speed, acceleration and jerk limits.
+
+    python bench/motion.py [--n 10] [--lead-ms 12]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import ruckig
+import zenoh
+
+from jara_arm.robots import robot
+from jara_arm.schema import codec, messages
+from jara_arm.schema import wire_types as w
+from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.operations import COMMON, OP
+from jara_arm.schema.planner import (
+    CONTROL_REQUEST,
+    MOTION_REQUEST,
+    PLAN_REPLY,
+    PLANNER_PROGRESS,
+    ControlAction,
+    ControlRequest,
+    MotionRequest,
+    MotionSettings,
+)
+from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
+from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.services.planner.profile import ProfileLimits
+from jara_arm.services.runtime.zenoh_args import zenoh_config
+
+MODEL = robot("iiwa")
+DT = MODEL.cmd_cycle
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def spawn(service: Service, port: int, *extra: str) -> subprocess.Popen:
+    argv = [sys.executable, "-m", f"jara_arm.services.{service.value}", "--robot", MODEL.name,
+            "--listen", f"tcp/127.0.0.1:{port}", *extra]
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+
+
+class Bench:
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self.keys = ArmKeys()
+        self.kin = Kinematics(MODEL)
+        self.ids = iter(range(1, 1 << 30))
+        self.lock = threading.Lock()
+        self.cmds: list[tuple[float, bytes]] = []
+        self.fbs: list[tuple[float, bytes]] = []
+        self.statuses: list[bytes] = []
+        session.declare_subscriber(self.keys.pos_cmd, lambda s: self._add(self.cmds, s))
+        session.declare_subscriber(self.keys.pos_feedback, lambda s: self._add(self.fbs, s))
+        session.declare_subscriber(self.keys.servo_status, lambda s: self._add(self.statuses, s))
+        self.progress = session.declare_subscriber(self.keys.planner_progress, zenoh.handlers.RingChannel(1))
+
+    def _add(self, where: list, sample: zenoh.Sample) -> None:
+        with self.lock:
+            where.append((time.time(), sample.payload.to_bytes()))
+
+    def drain(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[messages.ServoStatus]]:
+        with self.lock:
+            cmds, fbs, sts = self.cmds, self.fbs, self.statuses
+            self.cmds, self.fbs, self.statuses = [], [], []
+        dec = lambda b: codec.decode_message(w.TIMED_JOINT_POS, b)  # noqa: E731
+        cmd = [dec(b) for _, b in cmds]
+        fb = [dec(b) for _, b in fbs]
+        return (np.array([t for t, _ in cmds]), np.array([c.pos for c in cmd]),
+                np.array([f.tm.to_seconds() for f in fb]), np.array([f.pos for f in fb]),
+                [codec.decode_message(messages.SERVO_STATUS, b) for _, b in sts])
+
+    def settings(self, **kw) -> MotionSettings:
+        s = dict(spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=MODEL.rated_speed,
+                 maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=MODEL.min_accel_time,
+                 accelTimeCartesian=MODEL.min_accel_time_cartesian, softLimitJoint=MODEL.hard_limits,
+                 softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
+                 controlPointOffset=np.eye(4)[:3], home=MODEL.ready_pose)
+        s.update(kw)
+        return MotionSettings(**s)
+
+    def plan(self, op: str, args: dict | None = None, **kw):
+        req = MotionRequest(next(self.ids), op, args or {}, self.settings(**kw))
+        r = list(self.session.get(self.keys.planner_plan, payload=codec.encode_message(MOTION_REQUEST, req),
+                                  timeout=30.0))
+        reply = codec.decode_message(PLAN_REPLY, r[0].ok.payload.to_bytes())
+        assert reply.id == 0, reply
+        return req.motion, reply
+
+    def control(self, action: ControlAction) -> dict:
+        r = list(self.session.get(self.keys.planner_control, payload=codec.encode_message(
+            CONTROL_REQUEST, ControlRequest(action.value)), timeout=10.0))
+        return codec.loads(r[0].ok.payload.to_bytes())
+
+    def servo(self, op: str) -> None:
+        body = codec.encode_request(COMMON[op], {})
+        list(self.session.get(self.keys.servo_common(op), payload=body, timeout=5.0))
+
+    def wait_done(self, motion: int, timeout: float = 30.0) -> None:
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            s = self.progress.try_recv()
+            if s is not None:
+                p = codec.decode_message(PLANNER_PROGRESS, s.payload.to_bytes())
+                if max(p.lastDone, p.lastDiscarded) >= motion and not p.streaming:
+                    time.sleep(0.15)  # tracking settles
+                    return
+            time.sleep(0.005)
+        raise TimeoutError(f"motion {motion} not done")
+
+    def tcp(self, q: np.ndarray) -> np.ndarray:
+        return np.array([self.kin.control_point(x[:7])[:3, 3] for x in np.atleast_2d(q)])
+
+
+def car(p, R) -> dict:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, p
+    return w.CAR_POS_WITH_ELBOW.encode(CarPosWithElbow(T[:3], 0.0, 0))
+
+
+def line_dev(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    d = b - a
+    u = np.clip((p - a) @ d / (d @ d), 0, 1)
+    return float(np.linalg.norm(p - (a + u[:, None] * d), axis=1).max())
+
+
+def reply_to_motion(b: Bench, n: int) -> str:
+    lat = []
+    for k in range(n):
+        b.drain()
+        time.sleep(0.05)
+        _, _, _, fb0, _ = b.drain()
+        rest = fb0[-20:].mean(axis=0)
+        sign = 1 if k % 2 == 0 else -1
+        motion, _ = b.plan(OP.movePTPJointRel, {"jointPoints": [sign * 0.2] + [0.0] * 6})
+        t_reply = time.time()
+        b.wait_done(motion)
+        _, _, tf, fb, _ = b.drain()
+        moved = np.flatnonzero(np.abs(fb[:, 0] - rest[0]) > 1e-6)
+        lat.append(tf[moved[0]] - t_reply)
+    lat_ms = np.array(lat) * 1e3
+    return (f"reply -> first feedback that moved (> 1e-6 rad): median {np.median(lat_ms):.1f} ms, "
+            f"max {lat_ms.max():.1f} ms over {n} PTP moves")
+
+
+def cartesian(b: Bench) -> list[str]:
+    out = []
+    _, _, _, fb, _ = b.drain()
+    q0 = np.array(MODEL.ready_pose)
+    T0 = b.kin.control_point(q0)
+    p0, R0 = T0[:3, 3], T0[:3, :3]
+    # 0.5 m LIN, from the ready pose across the front of the robot
+    a = p0 + [-0.1, -0.25, 0.0]
+    m, _ = b.plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)})
+    b.wait_done(m)
+    bb = a + [0.0, 0.5, 0.0]
+    b.drain()
+    t0 = time.time()
+    m, reply = b.plan(OP.moveLinearCartesianAbs, {"carPoint": car(bb, R0)})
+    t_reply = time.time()
+    b.wait_done(m)
+    tc, cmd, _, fb, _ = b.drain()
+    out.append(f"LIN 0.5 m at 0.25 m/s ({reply.duration:.2f} s): request -> reply "
+               f"{1e3 * (t_reply - t0):.0f} ms, request -> first command {1e3 * (tc[0] - t0):.0f} ms; "
+               f"deviation planned {line_dev(b.tcp(cmd), a, bb) * 1e6:.3f} µm, "
+               f"executed {line_dev(b.tcp(fb), a, bb) * 1e6:.1f} µm")
+    # half circle, radius 0.15 m, in the x-y plane
+    r = 0.15
+    c = bb + [0.0, -r, 0.0]
+    via, target = c + [r, 0.0, 0.0], c + [0.0, -r, 0.0]
+    t0 = time.time()
+    m, reply = b.plan(OP.moveCircularCartesianAbs, {"carPointR": car(via, R0), "carPointT": car(target, R0)})
+    t_reply = time.time()
+    b.wait_done(m)
+    tc, cmd, _, fb, _ = b.drain()
+
+    def circ_dev(p: np.ndarray) -> float:
+        radial = np.linalg.norm(p[:, :2] - c[:2], axis=1) - r
+        return float(np.hypot(radial, p[:, 2] - c[2]).max())
+
+    out.append(f"CIRC half circle r = 0.15 m at 0.25 m/s ({reply.duration:.2f} s): request -> reply "
+               f"{1e3 * (t_reply - t0):.0f} ms, request -> first command {1e3 * (tc[0] - t0):.0f} ms; "
+               f"deviation planned {circ_dev(b.tcp(cmd)) * 1e6:.3f} µm, "
+               f"executed {circ_dev(b.tcp(fb)) * 1e6:.1f} µm")
+    return out
+
+
+def pause_latency(b: Bench, n: int) -> str:
+    lat = []
+    for k in range(n):
+        sign = 1 if k % 2 == 0 else -1
+        m, _ = b.plan(OP.movePTPJointRel, {"jointPoints": [sign * 0.6] + [0.0] * 6}, spdRatioJoint=30)
+        time.sleep(0.4)
+        b.drain()
+        b.control(ControlAction.PAUSE)
+        t_reply = time.time()
+        time.sleep(0.4)
+        b.control(ControlAction.RESUME)
+        b.wait_done(m)
+        tc, cmd, _, _, sts = b.drain()
+        first = int(np.argmax(tc > t_reply))
+        index = {tuple(q): i for i, q in enumerate(cmd)}
+        seen = [(s.tm.to_seconds(), index[tuple(s.target)]) for s in sts if tuple(s.target) in index]
+        t_seen, i_seen = next((t, i) for t, i in seen if i >= first)
+        lat.append(t_seen - (i_seen - first) * DT - t_reply)
+    lat_ms = np.array(lat) * 1e3
+    return (f"pause reply -> servo executes the first braking command: median {np.median(lat_ms):.1f} ms, "
+            f"max {lat_ms.max():.1f} ms over {n} pauses")
+
+
+def ptp_optimality(b: Bench) -> str:
+    rng = np.random.default_rng(1)
+    ratios = []
+    q = np.array(MODEL.ready_pose)
+    for _ in range(5):
+        dq = rng.uniform(-0.4, 0.4, 7)
+        m, reply = b.plan(OP.movePTPJointRel, {"jointPoints": list(dq)}, spdRatioJoint=100)
+        b.wait_done(m)
+        vmax = np.array(MODEL.rated_speed)
+        lim = [ProfileLimits.from_accel_time(v, MODEL.min_accel_time) for v in vmax]
+        inp = ruckig.InputParameter(7)
+        inp.current_position, inp.target_position = list(q), list(q + dq)
+        inp.max_velocity = [x.velocity for x in lim]
+        inp.max_acceleration = [x.acceleration for x in lim]
+        inp.max_jerk = [x.jerk for x in lim]
+        traj = ruckig.Trajectory(7)
+        ruckig.Ruckig(7).calculate(inp, traj)
+        ratios.append(reply.duration / traj.duration)
+        q = q + dq
+    return (f"PTP duration / time-optimal bound (Ruckig, same per-axis v, a, j; 5 random moves at 100 %): "
+            + ", ".join(f"{r:.3f}" for r in ratios))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=10, help="repetitions of the latency measurements")
+    ap.add_argument("--lead-ms", type=float, default=None, help="planner lead (default: its own)")
+    args = ap.parse_args()
+    sp, pp = free_port(), free_port()
+    servo = spawn(Service.SERVO, sp)
+    extra = ["--connect", f"tcp/127.0.0.1:{sp}"] + (["--lead-ms", str(args.lead_ms)] if args.lead_ms else [])
+    planner = spawn(Service.PLANNER, pp, *extra)
+    try:
+        time.sleep(1.0)
+        with zenoh.open(zenoh_config("peer", connect=[f"tcp/127.0.0.1:{sp}", f"tcp/127.0.0.1:{pp}"])) as s:
+            keys = ArmKeys()
+            deadline = time.time() + 60
+            while not (list(s.liveliness().get(keys.alive(Service.PLANNER), timeout=1.0))
+                       and list(s.liveliness().get(keys.alive(Service.SERVO), timeout=1.0))):
+                if time.time() > deadline:
+                    raise TimeoutError("services not up")
+            b = Bench(s)
+            b.servo(OP.servoON)
+            time.sleep(0.2)
+            m, _ = b.plan(OP.goHome)
+            b.wait_done(m)
+            print(reply_to_motion(b, args.n))
+            for line in cartesian(b):
+                print(line)
+            print(pause_latency(b, args.n))
+            print(ptp_optimality(b))
+    finally:
+        for p in (planner, servo):
+            os.killpg(p.pid, signal.SIGTERM)
+        for p in (planner, servo):
+            out, _ = p.communicate(timeout=10)
+            if p is planner:
+                for line in out.splitlines():
+                    if "planned in" in line and ("Linear" in line or "Circular" in line) or "WARNING" in line:
+                        print("planner log:", line.split(": ", 1)[-1])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

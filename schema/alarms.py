@@ -1,0 +1,122 @@
+"""The internal contract of the alarm monitor, the owner of each arm's list of active alarms.
+
+Everything here lives under ``JARA_ARM/<arm>/Monitor/``:
+
+* ``Monitor/Common/<op>`` (queryable): ``getActiveAlarm`` and ``clearAlarms``
+  of the Common table (:data:`MONITOR_OPERATIONS`); any other ``<op>`` gets
+  ``NOT_IMPLEMENTED``. The Common interfaces of the servo and of the command
+  service forward these two operations here, so that every interface agrees.
+* ``Monitor/alarms`` (publisher, on every change and at 2 Hz; also a
+  queryable that answers the current one): :class:`AlarmList`, the whole list.
+* ``Monitor/report`` (subscriber): :class:`AlarmReport` that a service puts
+  when it detects an alarm itself, and again when its cause has gone.
+
+The public side is ``JARA_ARM/<arm>/alarm``: an ``AlarmEvent`` for every alarm
+raised or cleared (``schema.messages.ALARM_EVENT``).
+
+:data:`ALARM_TABLE` lists every code this implementation raises, with its type
+and meaning (DECISIONS.md "Alarms": a FAULT switches the servo off and
+discards the motion queue; a WARNING stops the motion and keeps the servo on).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from collections.abc import Mapping
+from types import MappingProxyType
+
+from . import wire_types as w
+from .codes import AlarmCode, AlarmType
+from .operations import COMMON, OP, Operation
+from .types import Alarm, Time
+from .wire_types import Member, StructType
+
+
+class AlarmEventKind(enum.StrEnum):
+    """``AlarmEvent.event``."""
+
+    RAISED = "raised"
+    CLEARED = "cleared"
+
+
+@dataclasses.dataclass(frozen=True)
+class AlarmInfo:
+    """One row of the alarm table: what a code means and how the system reacts to it."""
+
+    code: AlarmCode
+    type: AlarmType
+    meaning: str
+
+
+ALARM_TABLE: tuple[AlarmInfo, ...] = (
+    AlarmInfo(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT,
+              "emergency stop: a put on JARA_ARM/<arm>/estop"),
+    AlarmInfo(AlarmCode.OVERLOAD, AlarmType.WARNING,
+              "overload: a joint effort above its rating (e.g. pushing against an obstacle)"),
+    AlarmInfo(AlarmCode.OVERSPEED, AlarmType.FAULT,
+              "overspeed: a joint faster than its rated speed, or a position command that jumps"),
+    AlarmInfo(AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING,
+              "joint soft limit crossed during motion, or a position command beyond it"),
+    AlarmInfo(AlarmCode.SOFT_LIMIT_CARTESIAN, AlarmType.WARNING,
+              "Cartesian soft limit crossed by the control point during motion"),
+    AlarmInfo(AlarmCode.SERVO_LOST, AlarmType.FAULT,
+              "the servo service is gone (its liveliness token was deleted)"),
+    AlarmInfo(AlarmCode.PLANNER_LOST, AlarmType.FAULT,
+              "the planner service is gone (its liveliness token was deleted)"),
+    AlarmInfo(AlarmCode.COMMAND_LOST, AlarmType.FAULT,
+              "the command service is gone (its liveliness token was deleted)"),
+    AlarmInfo(AlarmCode.SERVO_HUNG, AlarmType.FAULT,
+              "the servo service hangs: token up, Servo/status stale"),
+    AlarmInfo(AlarmCode.PLANNER_HUNG, AlarmType.FAULT,
+              "the planner service hangs: token up, Planner/progress stale"),
+    AlarmInfo(AlarmCode.COMMAND_HUNG, AlarmType.FAULT,
+              "the command service hangs: token up, Command/settings (its heartbeat) stale"),
+)
+
+#: Alarm type of every code, from :data:`ALARM_TABLE`.
+ALARM_TYPE: Mapping[int, AlarmType] = MappingProxyType({int(a.code): a.type for a in ALARM_TABLE})
+
+
+def make_alarm(code: AlarmCode, description: str) -> Alarm:
+    """The alarm ``code`` with its type from the table and ``description``."""
+    return Alarm(int(code), ALARM_TYPE[int(code)], description)
+
+
+def format_code(code: int) -> str:
+    """``0x01`` for the specification's codes, ``0x400`` for the model-specific ones."""
+    return f"0x{code:02x}"
+
+
+@dataclasses.dataclass(frozen=True)
+class AlarmList:
+    """``Monitor/alarms``: every active alarm of the arm, oldest first."""
+
+    tm: Time  # when the monitor made this list; a later tm is a newer list
+    started: Time  # when this monitor process started: a new value means a new monitor
+    alarms: tuple[Alarm, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class AlarmReport:
+    """``Monitor/report``: what a service detected, and whether its cause is still there."""
+
+    alarm: Alarm
+    present: bool  # the cause is still present (False: clearAlarms may clear it)
+    source: str  # the reporting service (a Service value)
+
+
+ALARM_LIST = StructType(AlarmList, (
+    Member("tm", w.TIME), Member("started", w.TIME, doc="start of the monitor process"),
+    Member("alarms", w.ALARM_SEQ, doc="oldest first"),
+), strict=False, doc="Internal: the alarm monitor's list of active alarms, Monitor/alarms.")
+ALARM_REPORT = StructType(AlarmReport, (
+    Member("alarm", w.ALARM), Member("present", w.BOOLEAN, doc="the cause is still present"),
+    Member("source", w.STRING, doc="the reporting service"),
+), strict=False, doc="Internal: a service -> the alarm monitor, Monitor/report.")
+
+#: The Common operations the alarm monitor serves at ``Monitor/Common/<op>``.
+MONITOR_OPERATIONS: Mapping[str, Operation] = MappingProxyType(
+    {name: COMMON[name] for name in (OP.clearAlarms, OP.getActiveAlarm)})
+
+MESSAGES: tuple[StructType, ...] = (ALARM_LIST, ALARM_REPORT)

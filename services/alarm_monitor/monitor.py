@@ -1,0 +1,309 @@
+"""The alarm monitor's thread: every input drained, every detector run, every change published.
+
+Zenoh only fills channels; one thread drains them every ``POLL_PERIOD`` and
+owns all the state (the :class:`AlarmBook` and the detectors). Other threads
+(the ``Monitor/Common`` RPC worker) hand it functions through :meth:`call`.
+Every change goes out at once as an ``AlarmEvent`` on ``JARA_ARM/<arm>/alarm``
+and as the new ``AlarmList`` on ``Monitor/alarms`` (and the list again every
+``LIST_PERIOD``, so that a late subscriber catches up).
+"""
+
+from __future__ import annotations
+
+import collections
+import concurrent.futures
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import TypeVar
+
+import numpy as np
+import zenoh
+
+from jara_arm.robots import RobotModel
+from jara_arm.schema import codec, messages
+from jara_arm.schema.alarms import (ALARM_LIST, ALARM_REPORT, AlarmEventKind, AlarmList, format_code,
+                                    make_alarm)
+from jara_arm.schema.codes import AlarmCode
+from jara_arm.schema.errors import JaraArmError, WireError
+from jara_arm.schema.keys import ArmKeys, Service, parse_alive
+from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
+from jara_arm.schema.types import Alarm, Time
+from jara_arm.services.planner.kinematics import Kinematics, arm_to_robot
+
+from .book import AlarmBook
+from .detectors import (CARTESIAN_LIMIT_TOLERANCE, HUNG_CODE, JOINT_LIMIT_TOLERANCE, LOST_CODE,
+                        OVERLOAD_MARGIN, OVERLOAD_SAMPLES, OVERSPEED_MARGIN, OVERSPEED_SAMPLES, STALE_AFTER,
+                        AboveRating, Crossing, ServiceWatch)
+from .reactions import Reactions
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+POLL_PERIOD = 0.005  #: [s] between two drains: bounds the monitor's share of the detection latency
+LIST_PERIOD = 0.5  #: [s] the AlarmList is published at least this often (2 Hz)
+#: A monitor loop that itself paused this long [s] waits as long before judging staleness,
+#: so that its own hiccup (the messages still in Zenoh's queues) never reads as a hung service.
+SELF_STALL = 0.02
+_STALL_LOG_EVERY = 10.0  #: [s] at most one warning about the monitor's own pauses this often
+_AXES = "XYZ"
+
+
+class Monitor:
+    """Owner of one arm's active alarms (see the module docstring)."""
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, robot: RobotModel) -> None:
+        self.robot = robot
+        self.keys = keys
+        self.started = Time.now()
+        self.book = AlarmBook()
+        self._last_tm_ns = 0
+        n = robot.axis_num
+        self._unit = ["m" if p else "rad" for p in robot.prismatic]
+        self._effort_unit = ["N" if p else "N m" for p in robot.prismatic]
+        self._overload = AboveRating(robot.rated_effort, OVERLOAD_MARGIN, OVERLOAD_SAMPLES)
+        speeds = list(robot.rated_speed) + ([robot.gripper_speed] if robot.has_gripper else [])
+        self._overspeed = AboveRating(speeds, OVERSPEED_MARGIN, OVERSPEED_SAMPLES)
+        self._joint = Crossing(JOINT_LIMIT_TOLERANCE)
+        self._cartesian = Crossing(CARTESIAN_LIMIT_TOLERANCE)
+        self._kinematics = Kinematics(robot, seed_table=0)  # FK only
+        self._settings: MotionSettings | None = None
+        self._n = n
+        self.watches = {s: ServiceWatch(s, STALE_AFTER[s]) for s in (Service.SERVO, Service.PLANNER,
+                                                                   Service.COMMAND)}
+        ring, fifo = zenoh.handlers.RingChannel, zenoh.handlers.FifoChannel
+        self._estop = session.declare_subscriber(keys.estop, fifo(64))
+        self._reports = session.declare_subscriber(keys.monitor_report, fifo(1024))
+        self._alive = session.liveliness().declare_subscriber(keys.alive(), fifo(256), history=True)
+        # Servo/status (100 Hz) carries the measured joints too: Servo/posFeedback (1 kHz) would
+        # cost the monitor and the router ten times the work for no alarm sooner than 10 ms.
+        self._status = session.declare_subscriber(keys.servo_status, fifo(256))
+        self._progress = session.declare_subscriber(keys.planner_progress, ring(1))
+        self._settings_sub = session.declare_subscriber(keys.command_settings, ring(1))
+        self._event_pub = session.declare_publisher(keys.alarm, express=True)
+        self._list_pub = session.declare_publisher(keys.monitor_alarms, express=True)
+        self._list_q = session.declare_queryable(keys.monitor_alarms, fifo(64))
+        self._reactions = Reactions(session, keys)
+        self._calls: collections.deque[tuple[Callable[[], object], concurrent.futures.Future]] = \
+            collections.deque()
+        self._dirty = True
+        self._list_at = -float("inf")
+        self._judge_after = 0.0  # [s] monotonic: staleness is judged from then on
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="alarm-monitor", daemon=True)
+
+    # -- life cycle ---------------------------------------------------------------
+    def start(self) -> None:
+        self._thread.start()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._reactions.close()
+        for entity in (self._estop, self._reports, self._alive, self._status, self._progress,
+                       self._settings_sub, self._event_pub, self._list_pub, self._list_q):
+            try:
+                entity.undeclare()
+            except Exception:
+                pass
+
+    def call(self, fn: Callable[[], T], timeout: float = 2.0) -> T:
+        """Run ``fn`` on the monitor thread once the pending inputs are drained; its result."""
+        fut: concurrent.futures.Future = concurrent.futures.Future()
+        self._calls.append((fn, fut))
+        return fut.result(timeout=timeout)
+
+    # -- the loop -----------------------------------------------------------------
+    def _run(self) -> None:
+        last = time.monotonic()
+        stall_logged = -float("inf")
+        while not self._stop.wait(POLL_PERIOD):
+            now = time.monotonic()
+            if now - last > SELF_STALL:
+                if now - stall_logged >= _STALL_LOG_EVERY:
+                    log.warning("the alarm monitor itself paused %.0f ms (staleness not judged meanwhile)",
+                                (now - last) * 1e3)
+                    stall_logged = now
+                self._judge_after = now + SELF_STALL
+            last = now
+            try:
+                _t0 = time.perf_counter(); _c0 = time.thread_time()
+                self._iterate(now)
+                self._dbg = getattr(self, "_dbg", [0, 0.0, 0.0]); self._dbg[0] += 1; self._dbg[1] += time.perf_counter() - _t0; self._dbg[2] += time.thread_time() - _c0
+                if self._dbg[0] % 1000 == 0: log.warning("DEBUGX iter wall %.1f us cpu %.1f us", self._dbg[1] / self._dbg[0] * 1e6, self._dbg[2] / self._dbg[0] * 1e6)
+            except Exception:  # a bug must not end the monitoring: log it, go on
+                log.exception("alarm monitor iteration failed")
+
+    def _iterate(self, now: float) -> None:
+        if self._estop.try_recv() is not None:
+            while self._estop.try_recv() is not None:
+                pass
+            log.error("emergency stop")
+            self._raise(AlarmCode.EMERGENCY_STOP, f"emergency stop: a put on {self.keys.estop}")
+        self._drain_liveliness(now)
+        while (s := self._reports.try_recv()) is not None:
+            try:
+                report = codec.decode_message(ALARM_REPORT, s.payload.to_bytes())
+            except WireError as exc:
+                log.error("ignored a malformed alarm report: %s", exc)
+                continue
+            if self.book.report(report):
+                self._raised(report.alarm, f"reported by the {report.source}")
+        while (s := self._status.try_recv()) is not None:
+            self.watches[Service.SERVO].heard(now)
+            try:
+                self._on_status(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
+            except WireError as exc:
+                log.error("ignored a malformed servo status: %s", exc)
+        if self._progress.try_recv() is not None:
+            self.watches[Service.PLANNER].heard(now)
+        if (s := self._settings_sub.try_recv()) is not None:
+            self.watches[Service.COMMAND].heard(now)
+            try:
+                self._on_settings(codec.decode_message(MOTION_SETTINGS, s.payload.to_bytes()))
+            except WireError as exc:
+                log.error("ignored malformed command settings: %s", exc)
+        if now >= self._judge_after:
+            self._judge_staleness(now)
+        while self._calls:
+            fn, fut = self._calls.popleft()
+            try:
+                fut.set_result(fn())
+            except Exception as exc:
+                fut.set_exception(exc)
+        while (query := self._list_q.try_recv()) is not None:
+            try:
+                query.reply(self.keys.monitor_alarms, codec.encode_message(ALARM_LIST, self.alarm_list()))
+            finally:
+                query.drop()
+        if self._dirty or now - self._list_at >= LIST_PERIOD:
+            self._list_pub.put(codec.encode_message(ALARM_LIST, self.alarm_list()))
+            self._dirty = False
+            self._list_at = now
+
+    # -- detectors ----------------------------------------------------------------
+    def _drain_liveliness(self, now: float) -> None:
+        while (s := self._alive.try_recv()) is not None:
+            try:
+                _arm, name = parse_alive(str(s.key_expr))
+                service = Service(name)
+            except (JaraArmError, ValueError):
+                continue  # someone else's token under our prefix
+            watch = self.watches.get(service)
+            if watch is None:
+                continue
+            up = s.kind == zenoh.SampleKind.PUT
+            if watch.token(up, now):
+                self._raise(LOST_CODE[service], f"the {service.value} service is gone: its liveliness "
+                            "token was deleted (process ended or unreachable)")
+            elif up:
+                log.info("the %s service is up", service.value)
+
+    def _judge_staleness(self, now: float) -> None:
+        for service, watch in self.watches.items():
+            code = HUNG_CODE[service]
+            if code not in self.book and watch.stale(now):
+                self._raise(code, f"the {service.value} service hangs: nothing from it for "
+                            f"{watch.silence(now) * 1e3:.0f} ms (threshold {watch.stale_after * 1e3:.0f} ms) "
+                            "while its liveliness token is up")
+
+    def _on_status(self, st: messages.ServoStatus) -> None:
+        if st.softLimitJoint:
+            self._joint.set_limits(st.softLimitJoint)
+        axis = self._overload.update(st.effort)
+        if axis is not None:
+            u = self._effort_unit[axis]
+            self._raise(AlarmCode.OVERLOAD, f"J{axis + 1} effort {abs(st.effort[axis]):.4g} {u} is above "
+                        f"{OVERLOAD_MARGIN:g} x its rating {self.robot.rated_effort[axis]:.4g} {u} for "
+                        f"{OVERLOAD_SAMPLES} samples: pushing against an obstacle?")
+        axis = self._overspeed.update(st.vel)
+        if axis is not None:
+            u = self._unit[axis] if axis < self._n else "m"
+            rated = self._overspeed.threshold[axis] / OVERSPEED_MARGIN
+            self._raise(AlarmCode.OVERSPEED, f"J{axis + 1} measured speed {abs(st.vel[axis]):.4g} {u}/s is "
+                        f"above {OVERSPEED_MARGIN:g} x its rated {rated:.4g} {u}/s")
+        if st.pos:
+            self._on_position(st.pos)
+
+    def _on_position(self, pos: tuple[float, ...]) -> None:
+        axis = self._joint.update(pos)
+        if axis is not None:
+            lim, u = self._joint.limit(axis), self._unit[axis]
+            self._raise(AlarmCode.SOFT_LIMIT_JOINT, f"J{axis + 1} = {pos[axis]:.6g} {u} crossed its joint "
+                        f"soft limit [{lim.lower:.6g}, {lim.upper:.6g}] {u} (measured, during motion)")
+        s = self._settings
+        if s is None or not self._cartesian.armed:
+            return
+        q = np.asarray(pos[: self._n], dtype=float)
+        p = arm_to_robot(self._kinematics.control_point(q, s.controlPointOffset), s.baseOffset)[:3, 3]
+        axis = self._cartesian.update(p)
+        if axis is not None:
+            lim = self._cartesian.limit(axis)
+            self._raise(AlarmCode.SOFT_LIMIT_CARTESIAN, f"the control point crossed the Cartesian soft "
+                        f"limit: {_AXES[axis].lower()} = {p[axis]:.4g} m outside "
+                        f"[{lim.lower:.4g}, {lim.upper:.4g}] m (robot frame, during motion)")
+
+    def _on_settings(self, s: MotionSettings) -> None:
+        old = self._settings
+        self._settings = s
+        if old is None or not (np.array_equal(old.baseOffset, s.baseOffset)
+                               and np.array_equal(old.controlPointOffset, s.controlPointOffset)):
+            self._cartesian.reset()  # new frames: the next sample only says where the arm is
+        self._cartesian.set_limits(s.softLimitCartesian)
+
+    def detected(self, code: int) -> bool:
+        """Whether the monitor's own detectors see the cause of ``code`` now."""
+        if code == AlarmCode.OVERLOAD:
+            return self._overload.present
+        if code == AlarmCode.OVERSPEED:
+            return self._overspeed.present
+        if code == AlarmCode.SOFT_LIMIT_JOINT:
+            return self._joint.present
+        if code == AlarmCode.SOFT_LIMIT_CARTESIAN:
+            return self._cartesian.present
+        for service, watch in self.watches.items():
+            if code == LOST_CODE[service]:
+                return not watch.alive
+            if code == HUNG_CODE[service]:
+                return watch.stale(time.monotonic())
+        return False  # emergency stop: a put is an event, gone once acknowledged
+
+    # -- the list -------------------------------------------------------------------
+    def _raise(self, code: AlarmCode, description: str) -> None:
+        alarm = make_alarm(code, description)
+        if self.book.raise_alarm(alarm):
+            self._raised(alarm, "detected by the alarm monitor")
+
+    def _raised(self, alarm: Alarm, how: str) -> None:
+        log.error("alarm %s %s raised (%s): %s", format_code(alarm.code), alarm.type.value, how,
+                  alarm.description)
+        self._publish_event(AlarmEventKind.RAISED, alarm)
+        self._reactions.react(alarm)
+
+    def clear_now(self) -> tuple[list[Alarm], list[Alarm]]:
+        """``clearAlarms``: clear what has no cause any more; (cleared, kept)."""
+        cleared, kept = self.book.clear(self.detected)
+        for alarm in cleared:
+            log.info("alarm %s cleared: %s", format_code(alarm.code), alarm.description)
+            self._publish_event(AlarmEventKind.CLEARED, alarm)
+        for alarm in kept:
+            log.info("alarm %s kept: its cause is still present", format_code(alarm.code))
+        if cleared:  # the list first, so that the caller's next reads already see it
+            self._list_pub.put(codec.encode_message(ALARM_LIST, self.alarm_list()))
+            self._list_at = time.monotonic()
+        return cleared, kept
+
+    def _publish_event(self, kind: AlarmEventKind, alarm: Alarm) -> None:
+        self._event_pub.put(codec.encode_message(messages.ALARM_EVENT, messages.AlarmEvent(kind.value, alarm)))
+        self._dirty = True
+
+    def alarm_list(self) -> AlarmList:
+        """The list now; ``tm`` strictly increases, so that a newer list always compares newer."""
+        ns = max(time.time_ns(), self._last_tm_ns + 1)
+        self._last_tm_ns = ns
+        return AlarmList(Time(ns // 1_000_000_000, ns % 1_000_000_000), self.started, self.book.alarms)

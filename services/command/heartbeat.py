@@ -1,0 +1,63 @@
+"""``Command/settings``: the command's settings, for the alarm monitor, and its heartbeat.
+
+The alarm monitor checks the control point against the Cartesian soft limits
+with the command's base offset and control point offset, so it needs the
+settings as they are now: they are published on every change. They are also
+published every ``HEARTBEAT_PERIOD`` from the service's main thread, so that a
+command process that hangs (its liveliness token still up) falls silent here.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import zenoh
+
+from jara_arm.robots import RobotModel
+from jara_arm.schema import codec
+from jara_arm.schema.keys import ArmKeys
+from jara_arm.schema.planner import MOTION_SETTINGS
+
+from .settings import Settings
+from .state import StateTracker
+
+#: Settings are published at least this often [s] (4 Hz); the monitor's staleness threshold is a few of them.
+HEARTBEAT_PERIOD = 0.25
+
+
+class SettingsPublisher:
+    """Publishes a ``MotionSettings`` snapshot on change and on every heartbeat; thread-safe."""
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker, robot: RobotModel,
+                 settings: Settings) -> None:
+        self._pub = session.declare_publisher(keys.command_settings)
+        self._tracker = tracker
+        self._robot = robot
+        self._lock = threading.Lock()
+        self._settings = settings
+        self._at = -float("inf")  # [s] monotonic time of the last publication
+
+    def changed(self, settings: Settings) -> None:
+        """A setter replaced the settings: publish them now."""
+        with self._lock:
+            self._settings = settings
+            self._put()
+
+    def heartbeat(self) -> None:
+        """Publish again unless a change did within the last half period."""
+        with self._lock:
+            if time.monotonic() - self._at >= 0.5 * HEARTBEAT_PERIOD:
+                self._put()
+
+    def _put(self) -> None:
+        # The joint soft limits are the servo's (from its status), the model's until it spoke.
+        limits = self._tracker.soft_limit_joint or self._robot.hard_limits
+        self._pub.put(codec.encode_message(MOTION_SETTINGS, self._settings.snapshot(limits)))
+        self._at = time.monotonic()
+
+    def close(self) -> None:
+        try:
+            self._pub.undeclare()
+        except Exception:
+            pass

@@ -1,0 +1,104 @@
+"""The planning process: :class:`MotionPlanner` runs in a child process of its own.
+
+Planning a LIN or CIRC solves IK at every servo period and holds the CPU for
+a good fraction of a second. In the streaming process that computation would
+hold the GIL, and whenever the OS preempts the planning thread while it holds
+it, the streamer would wait with it -- long enough for the servo's FIFO to run
+dry on a loaded machine. In a child process it only competes for a CPU, where
+the streamer's real-time priority wins.
+
+The child is started with ``spawn`` (the parent has Zenoh threads), receives
+``(MotionRequest, start joints)`` on a pipe and sends back the
+:class:`PlannedMotion` (pickled; its Ruckig profile is rebuilt on arrival) or
+the refusal. It exits when the pipe closes, so it never outlives the service.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import multiprocessing.connection
+import os
+import signal
+import threading
+
+from jara_arm.robots import RobotModel
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.planner import MotionRequest
+from jara_arm.services.runtime.logs import setup_stderr
+
+from .planning import MotionPlanner, PlanRefused
+from .trajectory import Joints, PlannedMotion
+
+log = logging.getLogger(__name__)
+
+_START_TIMEOUT = 60.0  # [s] for the child to import its libraries and build the kinematics
+
+
+def _serve(conn: multiprocessing.connection.Connection, model: RobotModel, log_level: str) -> None:
+    """The child's loop: one request in, one answer out, until the pipe closes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the service's to handle; EOF ends us
+    try:  # a restart from a real-time thread would pass its priority on: planning is no real-time work
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+    setup_stderr(log_level)
+    planner = MotionPlanner(model)
+    conn.send(("ready",))
+    while True:
+        try:
+            req, start = conn.recv()
+        except (EOFError, OSError):
+            return
+        try:
+            answer: tuple = ("ok", planner.plan(req, start))
+        except PlanRefused as exc:
+            answer = ("refused", int(exc.code), exc.comment)
+        except Exception as exc:  # a planner bug: refuse this motion, keep serving
+            log.exception("planning motion %d %s failed", req.motion, req.op)
+            answer = ("refused", int(ReturnCode.NG), f"internal error while planning {req.op}: {exc}")
+        conn.send(answer)
+
+
+class PlanningProcess:
+    """A child process that plans motions for ``model``; :meth:`plan` is its only call."""
+
+    def __init__(self, model: RobotModel, log_level: str = "INFO") -> None:
+        self.model = model
+        self._log_level = log_level
+        self._ctx = multiprocessing.get_context("spawn")
+        self._lock = threading.Lock()  # one request at a time on the pipe
+        self._start()
+
+    def _start(self) -> None:
+        self._conn, child = self._ctx.Pipe()
+        self._proc = self._ctx.Process(target=_serve, args=(child, self.model, self._log_level),
+                                       name="jara-arm-planning", daemon=True)
+        self._proc.start()
+        child.close()
+        if not self._conn.poll(_START_TIMEOUT):
+            raise RuntimeError(f"the planning process did not start within {_START_TIMEOUT:.0f} s")
+        self._conn.recv()
+
+    def plan(self, req: MotionRequest, start: Joints) -> PlannedMotion:
+        """The planned motion; raises PlanRefused (also if the child died: it is restarted)."""
+        with self._lock:
+            try:
+                self._conn.send((req, start))
+                answer = self._conn.recv()
+            except (EOFError, OSError, BrokenPipeError):
+                log.error("the planning process died (exit code %s); restarting it", self._proc.exitcode)
+                self._proc.join(timeout=1.0)
+                self._start()
+                raise PlanRefused(ReturnCode.NG, f"internal error: the planning process died while "
+                                  f"planning {req.op}") from None
+        if answer[0] == "ok":
+            return answer[1]
+        raise PlanRefused(ReturnCode(answer[1]), answer[2])
+
+    def close(self) -> None:
+        self._conn.close()
+        self._proc.join(timeout=2.0)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(timeout=2.0)

@@ -1,0 +1,514 @@
+"""Alarms for real: the whole system under ``jara-arm up``, every fault provoked for real.
+
+One launcher for the module (servo, planner, command, alarm monitor, and an
+obstacle box in the simulated world). For each fault the test checks: the
+alarm in ``getActiveAlarm`` of both Common interfaces with its code and type,
+the ``raised`` event on ``JARA_ARM/<arm>/alarm``, bit 0x04 of both
+``getState``, the arm at rest without a jump (no feedback acceleration beyond
+the axes' limits), the motion queue discarded, and ``clearAlarms`` plus
+``servoON`` bringing the arm back to work once the cause has gone.
+
+Detection latency (cause -> alarm event received here) is measured for each
+and printed at the end of the module (``pytest -s`` shows it); the cause is:
+the e-stop put, the SIGKILL, the SIGSTOP, the publication of the first
+position command that jumps or leaves the joint soft limits, the servo's
+timestamp (``tm``) of the first feedback sample beyond the Cartesian limit or
+of the first status sample whose effort is above the rating.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import signal
+import sys
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import zenoh
+
+from jara_arm.robots import robot
+from jara_arm.schema import codec, messages
+from jara_arm.schema import wire_types as w
+from jara_arm.schema.alarms import ALARM_LIST, AlarmEventKind
+from jara_arm.schema.codec import Reply
+from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
+from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.operations import OP
+from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
+from jara_arm.services.alarm_monitor.detectors import STALE_AFTER
+from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.services.servo.loop import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
+
+from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
+
+pytestmark = pytest.mark.timeout(60)
+
+IIWA = robot("iiwa")
+N = IIWA.axis_num
+DT = IIWA.cmd_cycle
+VMAX = np.array(IIWA.rated_speed)
+AMAX = np.array(IIWA.max_accel)
+READY = np.array(IIWA.ready_pose)
+#: A box beside the flange of the ready pose: turning J1 by about +0.35 rad runs into it.
+OBSTACLE = "0.57,0.31,0.61,0.05,0.05,0.15"
+#: Feedback acceleration allowed while stopping, per axis: the limit x 1.5 (simulation noise) [rad/s^2].
+ACC_ALLOWED = AMAX * 1.5
+ALL_SERVICES = [Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR]
+_STARTED = re.compile(r"started (\S+) \((\S+)\): pid (\d+)")
+LATENCIES: dict[str, list[float]] = {}  # [ms] per scenario
+
+
+class System:
+    """The launcher, a client session and everything recorded from the arm."""
+
+    def __init__(self, proc: Proc, port: int, session: zenoh.Session) -> None:
+        self.proc, self.port, self.session = proc, port, session
+        self.keys = ArmKeys("arm0")
+        self.client = Client(session)
+        self.kin = Kinematics(IIWA, seed_table=0)
+        self.events: list[tuple[float, messages.AlarmEvent]] = []
+        # A callback that only stamps and stores: the receipt time is what is measured.
+        self._event_sub = session.declare_subscriber(
+            self.keys.alarm, lambda s: self.events.append(
+                (time.time(), codec.decode_message(messages.ALARM_EVENT, s.payload.to_bytes()))))
+        self._fb = session.declare_subscriber(self.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
+        self._status = session.declare_subscriber(self.keys.servo_status, zenoh.handlers.FifoChannel(1 << 14))
+        self.pub = session.declare_publisher(self.keys.pos_cmd, express=True)
+        self.cart_limits = self.middle(OP.getSoftLimitCartesian)
+
+    # -- calls ------------------------------------------------------------------
+    def common(self, name: str, args: dict | None = None) -> Reply:
+        return self.client.common(name, args)
+
+    def middle(self, name: str, args: dict | None = None) -> Reply:
+        return self.client.middle(name, args)
+
+    def servo(self, name: str, args: dict | None = None) -> Reply:
+        return self.client.servo(name, args)
+
+    def ok(self, reply: Reply) -> Reply:
+        assert reply.id == ReturnCode.OK, reply
+        return reply
+
+    def state(self) -> int:
+        return self.common(OP.getState)["state"]
+
+    def joints(self) -> np.ndarray:
+        return np.array(self.common(OP.getFeedbackPosJoint)["pos"])
+
+    def pid(self, service: Service) -> int:
+        """The pid of the newest process of ``service`` the launcher started."""
+        pids = [int(m[3]) for line in list(self.proc.lines)
+                if (m := _STARTED.search(line)) and m[1] == service.value]
+        return pids[-1]
+
+    # -- recordings ---------------------------------------------------------------
+    def mark(self) -> int:
+        """Forget the recorded feedback and status; the index of the next alarm event."""
+        while self._fb.try_recv() is not None:
+            pass
+        while self._status.try_recv() is not None:
+            pass
+        return len(self.events)
+
+    def feedback(self) -> tuple[np.ndarray, np.ndarray]:
+        """(tm [s], joints) of the feedback since ``mark``."""
+        out = []
+        while (s := self._fb.try_recv()) is not None:
+            msg = codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes())
+            out.append((msg.tm.to_seconds(), msg.pos))
+        return np.array([t for t, _ in out]), np.array([q for _, q in out])
+
+    def statuses(self) -> list[messages.ServoStatus]:
+        out = []
+        while (s := self._status.try_recv()) is not None:
+            out.append(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
+        return out
+
+    def event(self, code: AlarmCode, since: int, kind: AlarmEventKind = AlarmEventKind.RAISED,
+              timeout: float = 5.0) -> tuple[float, messages.AlarmEvent]:
+        """The first ``kind`` event of ``code`` after index ``since``: (receipt time [s], event)."""
+        def find():
+            for t, e in self.events[since:]:
+                if e.event == kind.value and e.alarm.code == code:
+                    return t, e
+            return None
+        return wait_until(find, timeout, 0.002, f"{kind.value} event of 0x{code:02x}; got {self.events[since:]}")
+
+    # -- motion -------------------------------------------------------------------
+    def send(self, q: np.ndarray) -> float:
+        """Publish one position command; the time it was published [s]."""
+        self.pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time.now(), tuple(map(float, q)))))
+        return time.time()
+
+    def stream(self, points: np.ndarray, lead: int = 5) -> list[float]:
+        """Publish ``points`` in real time, ``lead`` commands ahead of the servo; their publication times."""
+        sent = []
+        t0 = time.monotonic()
+        for k, q in enumerate(points):
+            sent.append(self.send(q))
+            if k >= lead:
+                delay = t0 + (k - lead) * DT - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+        return sent
+
+    def wait_rest(self, timeout: float = 10.0) -> None:
+        wait_until(lambda: not self.state() & StateBit.MOVING, timeout, what="the arm at rest, queue empty")
+
+    def clear(self, timeout: float = 5.0) -> Reply:
+        """clearAlarms until it says OK (a cause may take a moment to go)."""
+        return wait_until(lambda: (r := self.common(OP.clearAlarms)).id == ReturnCode.OK and r, timeout, 0.05,
+                          "clearAlarms to succeed")
+
+    def goto(self, q: np.ndarray, speed: int = 60) -> None:
+        self.ok(self.middle(OP.setSpeedJoint, {"spdRatio": speed}))
+        self.ok(self.middle(OP.movePTPJointAbs, {"jointPoints": tuple(map(float, q))}))
+        self.wait_rest()
+
+    def reset(self) -> None:
+        """At rest, no alarm, default limits, servo on, at the ready pose."""
+        self.common(OP.servoOFF)
+        self.wait_rest()
+        self.clear()
+        self.ok(self.common(OP.setSoftLimitJoint, {"softLimit": IIWA.hard_limits}))
+        c = self.cart_limits
+        self.ok(self.middle(OP.setSoftLimitCartesian, {k: c[k] for k in ("xLimit", "yLimit", "zLimit")}))
+        self.ok(self.common(OP.servoON))
+        self.goto(READY)
+        assert self.common(OP.getActiveAlarm)["alarms"] == ()
+
+
+@contextlib.contextmanager
+def launched() -> Iterator[tuple[Proc, int]]:
+    port = free_port()
+    proc = Proc([sys.executable, "-m", "jara_arm.launcher", "up", "--listen", endpoint(port),
+                 "--obstacle", OBSTACLE])
+    try:
+        proc.wait_for_line("jara-arm: ready", timeout=60)
+        yield proc, port
+    finally:
+        code = proc.stop(signal.SIGINT, timeout=20)
+        assert code == 0, f"launcher exit {code}:\n{proc.output[-4000:]}"
+        assert "Traceback" not in proc.output, proc.output
+
+
+@pytest.fixture(scope="module")
+def system() -> Iterator[System]:
+    with launched() as (proc, port), client_session(port) as session:
+        wait_alive(session, "arm0", ALL_SERVICES, timeout=30)
+        yield System(proc, port, session)
+    report_latencies()
+
+
+@pytest.fixture
+def arm(system: System) -> System:
+    system.reset()
+    return system
+
+
+def report_latencies() -> None:
+    if not LATENCIES:
+        return
+    print("\nalarm detection latency, cause -> alarm event received [ms]:")
+    for name, values in LATENCIES.items():
+        v = np.array(values)
+        print(f"  {name:<34} n={len(v)}  min {v.min():6.1f}  median {np.median(v):6.1f}  max {v.max():6.1f}")
+
+
+def latency(name: str, cause: float, detected: float) -> float:
+    ms = (detected - cause) * 1e3
+    LATENCIES.setdefault(name, []).append(ms)
+    print(f"\n{name}: alarm {ms:.1f} ms after its cause")
+    return ms
+
+
+# ---------------------------------------------------------------------------- checks
+
+
+def check_alarm(arm: System, code: AlarmCode, kind: AlarmType, servo_on: bool) -> None:
+    """Both Common interfaces list it with its type; bit 0x04 in both getState; servo as expected."""
+    for reply in (arm.common(OP.getActiveAlarm), arm.servo(OP.getActiveAlarm)):
+        alarms = {a.code: a for a in arm.ok(reply)["alarms"]}
+        assert code in alarms and alarms[code].type is kind and alarms[code].description, reply
+    for state in (arm.state(), arm.servo(OP.getState)["state"]):
+        assert state & StateBit.ALARM, state
+        assert bool(state & StateBit.SERVO_ON) == servo_on, state
+
+
+def check_no_jump(arm: System, since: float = 0.0, allowed: np.ndarray = ACC_ALLOWED) -> np.ndarray:
+    """At rest, and the feedback (from ``since`` [s] on) never accelerated beyond ``allowed``; the last joints."""
+    arm.wait_rest()
+    time.sleep(0.05)
+    tm, q = arm.feedback()
+    keep = tm >= since - 0.05
+    tm, q = tm[keep], q[keep]
+    assert len(tm) > 50, "no feedback recorded"
+    vel = np.diff(q, axis=0) / np.diff(tm)[:, None]
+    acc = np.diff(vel, axis=0) / np.diff(tm)[1:, None]
+    peak = np.abs(acc[:, :N]).max(axis=0)
+    assert np.all(peak <= allowed), f"feedback acceleration {peak.round(2)} beyond {allowed.round(2)}"
+    assert np.abs(vel[-20:, :N]).max() < 1e-2, "not at rest at the end of the recording"
+    return q[-1]
+
+
+def check_queue_discarded(arm: System) -> None:
+    arm.wait_rest(5.0)  # MOVING covers the queue: at rest with nothing queued
+    assert not arm.state() & StateBit.BUFFER_FULL
+
+
+def check_back_to_work(arm: System, servo_on_needed: bool = True) -> None:
+    """Cause gone: clearAlarms OK, servoON OK, and a motion runs to its end."""
+    arm.clear()
+    assert arm.common(OP.getActiveAlarm)["alarms"] == () and arm.servo(OP.getActiveAlarm)["alarms"] == ()
+    if servo_on_needed:
+        assert not arm.state() & StateBit.SERVO_ON
+    arm.ok(arm.common(OP.servoON))
+    assert arm.state() == StateBit.SERVO_ON and arm.servo(OP.getState)["state"] == StateBit.SERVO_ON
+    arm.goto(READY)
+    assert np.abs(arm.joints() - READY).max() < 2e-3
+
+
+def min_jerk(q0: np.ndarray, q1: np.ndarray, duration: float) -> np.ndarray:
+    u = np.linspace(0.0, 1.0, int(round(duration / DT)) + 1)[:, None]
+    return q0 + (10 * u**3 - 15 * u**4 + 6 * u**5) * (q1 - q0)
+
+
+@contextlib.contextmanager
+def stopped(pid: int) -> Iterator[None]:
+    """SIGSTOP ``pid``; SIGCONT when the block ends, whatever happens."""
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        yield
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+# ---------------------------------------------------------------------------- scenarios
+
+
+def test_estop_during_a_lin(arm: System):
+    """E-stop: FAULT 0x01, servo off, controlled stop along the way, queue gone; the CLI prints it."""
+    alarms_cli = Proc([sys.executable, "-m", "jara_arm.launcher", "alarms", "--connect", endpoint(arm.port)])
+    logs_cli = Proc([sys.executable, "-m", "jara_arm.launcher", "logs", "--connect", endpoint(arm.port),
+                     "--service", "alarm-monitor", "--level", "ERROR"])
+    try:
+        alarms_cli.wait_for_line("arm0 ACTIVE  none", timeout=20)
+        time.sleep(1.0)  # the logs subscriber is declared by then
+        arm.ok(arm.middle(OP.setSpeedCartesian, {"spdRatio": 60}))
+        down = CarPosWithElbow(hg_matrix(translation=(0.0, -0.2, -0.1)), 0.0, 0)
+        arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": down}))
+        arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": down}))
+        since = arm.mark()
+        time.sleep(0.6)  # in the middle of the first LIN
+        assert arm.state() & StateBit.MOVING
+        cause = time.time()
+        arm.session.put(arm.keys.estop, b"")
+        t, event = arm.event(AlarmCode.EMERGENCY_STOP, since)
+        latency("e-stop put", cause, t)
+        assert event.alarm.type is AlarmType.FAULT
+        check_alarm(arm, AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, servo_on=False)
+        check_queue_discarded(arm)
+        check_no_jump(arm)
+        refused = arm.middle(OP.moveLinearCartesianRel, {"carPoint": down})
+        assert refused.id in (ReturnCode.STATUS_ERR, ReturnCode.NOT_SV_ON_ERR), refused
+        assert "0x01 FAULT emergency stop" in alarms_cli.wait_for_line("RAISED", timeout=5)
+        assert "0x01 FAULT raised" in logs_cli.wait_for_line("ERROR", timeout=5)
+        check_back_to_work(arm)
+        assert "0x01" in alarms_cli.wait_for_line("CLEARED", timeout=5)
+    finally:
+        for cli in (alarms_cli, logs_cli):
+            assert cli.stop(signal.SIGINT) == 0, cli.output
+            assert "Traceback" not in cli.output, cli.output
+    assert not any(" INFO " in line for line in logs_cli.lines), "--level ERROR let INFO through"
+
+
+def test_driven_into_an_obstacle(arm: System):
+    """Overload: WARNING 0x02, servo stays on, the arm stops and stops pushing, queue gone."""
+    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 15}))
+    since = arm.mark()
+    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.8,) + (0.0,) * (N - 1)}))
+    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.1,) + (0.0,) * (N - 1)}))
+    t, event = arm.event(AlarmCode.OVERLOAD, since, timeout=10)
+    rating = np.array(IIWA.rated_effort)
+    above = [s for s in arm.statuses() if np.any(np.abs(s.effort[:N]) > rating)]
+    assert above, "no status sample above the rating"
+    latency("overload (first effort above rating)", above[0].tm.to_seconds(), t)
+    assert event.alarm.type is AlarmType.WARNING and "J1" in event.alarm.description
+    check_alarm(arm, AlarmCode.OVERLOAD, AlarmType.WARNING, servo_on=True)
+    check_queue_discarded(arm)
+    q = check_no_jump(arm, since=t)
+    assert 0.2 < q[0] < 0.6, q  # stopped by the box, long before the target (0.8)
+    # Held where it stopped, not pushing: the effort falls back below the rating.
+    arm.mark()
+    time.sleep(0.2)
+    assert np.all(np.abs(np.array(arm.statuses()[-1].effort[:N])) < rating)
+    refused = arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.1,) + (0.0,) * (N - 1)})
+    assert refused.id == ReturnCode.STATUS_ERR and "alarm" in refused.comment, refused
+    check_back_to_work(arm, servo_on_needed=False)
+
+
+def test_position_stream_that_jumps(arm: System):
+    """A jump in a low-level stream: FAULT 0x03, not applied, servo off, stop without a jump."""
+    q0 = arm.joints()
+    path = min_jerk(q0, q0 + np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)
+    jump = 300
+    path[jump:, 2] += VMAX[2] * DT * OVERSPEED_MARGIN * 3  # J3 jumps, then goes on from there
+    since = arm.mark()
+    sent = arm.stream(path[: jump + 50])
+    t, event = arm.event(AlarmCode.OVERSPEED, since)
+    latency("jump in the stream (publication)", sent[jump], t)
+    assert event.alarm.type is AlarmType.FAULT and "J3" in event.alarm.description
+    check_alarm(arm, AlarmCode.OVERSPEED, AlarmType.FAULT, servo_on=False)
+    q = check_no_jump(arm)
+    assert abs(q[2] - q0[2]) < 1e-3, "the jump was applied"
+    check_back_to_work(arm)
+
+
+def test_position_stream_that_leaves_the_joint_soft_limits(arm: System):
+    """A stream through a joint soft limit: WARNING 0x04; the servo stops in front of it, servo on."""
+    q0 = arm.joints()
+    limits = list(IIWA.hard_limits)
+    limits[0] = LimitValue(upper=q0[0] + 0.5, lower=q0[0] - 0.1)
+    arm.ok(arm.common(OP.setSoftLimitJoint, {"softLimit": limits}))
+    path = min_jerk(q0, q0 - np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)  # through the lower limit
+    since = arm.mark()
+    sent = arm.stream(path)
+    t, event = arm.event(AlarmCode.SOFT_LIMIT_JOINT, since)
+    # The servo refuses the first command from which it could not stop before the limit
+    # (its description names it): that command is the cause.
+    refused = float(re.search(r"J1=(\S+) ", event.alarm.description)[1])
+    first = int(np.argmin(np.abs(path[:, 0] - refused)))
+    assert abs(path[first, 0] - refused) < 1e-5 and path[first, 0] > limits[0].lower
+    latency("joint soft limit (publication)", sent[first], t)
+    assert event.alarm.type is AlarmType.WARNING
+    check_alarm(arm, AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING, servo_on=True)
+    # A stop in front of a limit may use the planner's peak deceleration (servo LIMIT_STOP_ACCEL).
+    q = check_no_jump(arm, allowed=AMAX * LIMIT_STOP_ACCEL * 1.2)
+    assert limits[0].lower - 1e-3 <= q[0] < limits[0].lower + 5e-3, (q[0], limits[0])
+    check_back_to_work(arm, servo_on_needed=False)
+
+
+def test_control_point_crosses_the_cartesian_soft_limits(arm: System):
+    """A stream that lifts the tool above the Cartesian box: WARNING 0x05, kept while outside."""
+    q0 = arm.joints()
+    z0 = arm.kin.fk(q0)[2, 3]
+    c = arm.cart_limits
+    box = {"xLimit": c["xLimit"], "yLimit": c["yLimit"], "zLimit": LimitValue(upper=z0 + 0.03, lower=c["zLimit"].lower)}
+    arm.ok(arm.middle(OP.setSoftLimitCartesian, box))
+    time.sleep(0.1)  # the monitor has the new settings
+    q1 = q0 + np.array([0.0, -0.4, 0.0, 0.3, 0.0, 0.0, 0.0])
+    assert arm.kin.fk(q1)[2, 3] > z0 + 0.06, "the test motion must lift the flange"
+    since = arm.mark()
+    arm.stream(min_jerk(q0, q1, 0.8))
+    t, event = arm.event(AlarmCode.SOFT_LIMIT_CARTESIAN, since)
+    tm, q = arm.feedback()
+    z = np.array([arm.kin.fk(x[:N])[2, 3] for x in q])
+    crossed = tm[int(np.argmax(z > box["zLimit"].upper + 1e-3))]
+    latency("Cartesian soft limit (feedback tm)", crossed, t)
+    assert event.alarm.type is AlarmType.WARNING and "z" in event.alarm.description
+    check_alarm(arm, AlarmCode.SOFT_LIMIT_CARTESIAN, AlarmType.WARNING, servo_on=True)
+    arm.wait_rest()
+    kept = arm.common(OP.clearAlarms)  # the tool is still above the box: the cause is present
+    assert kept.id == ReturnCode.STATUS_ERR and "0x05" in kept.comment and "still present" in kept.comment, kept
+    arm.ok(arm.middle(OP.setSoftLimitCartesian, {k: c[k] for k in ("xLimit", "yLimit", "zLimit")}))
+    time.sleep(0.1)
+    check_back_to_work(arm, servo_on_needed=False)
+
+
+def kill_mid_motion(arm: System, service: Service, code: AlarmCode) -> None:
+    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 20}))
+    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.6,) + (0.0,) * (N - 1)}))
+    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.3,) + (0.0,) * (N - 1)}))
+    since = arm.mark()
+    time.sleep(0.5)
+    assert arm.state() & StateBit.MOVING
+    pid = arm.pid(service)
+    mark = len(arm.proc.lines)
+    cause = time.time()
+    os.kill(pid, signal.SIGKILL)
+    t, event = arm.event(code, since)
+    latency(f"{service.value} SIGKILL", cause, t)
+    assert event.alarm.type is AlarmType.FAULT and service.value in event.alarm.description
+    reply = arm.common(OP.getActiveAlarm)  # the command asks the monitor: the servo may be down
+    assert [(a.code, a.type) for a in arm.ok(reply)["alarms"]] == [(code, AlarmType.FAULT)], reply
+    assert arm.state() & StateBit.ALARM
+    arm.proc.wait_for_line(f"died with SIGKILL; restarting", timeout=5, start=mark)
+    arm.proc.wait_for_line(f"arm0/{service.value}: {service.value} up", timeout=20, start=mark)
+    wait_alive(arm.session, "arm0", [service], timeout=10)
+    check_alarm(arm, code, AlarmType.FAULT, servo_on=False)  # the servo's interface agrees again
+    check_queue_discarded(arm)
+
+
+def test_servo_killed_in_the_middle_of_a_motion(arm: System):
+    """Servo SIGKILL: FAULT 0x400; the launcher restarts it; clearable once its token is back."""
+    kill_mid_motion(arm, Service.SERVO, AlarmCode.SERVO_LOST)
+    # The simulated arm restarts at its ready pose (a real one would be held by its brakes).
+    check_back_to_work(arm)
+
+
+def test_planner_killed_in_the_middle_of_a_motion(arm: System):
+    """Planner SIGKILL: FAULT 0x401, the servo stops the arm smoothly and goes off; restarted."""
+    kill_mid_motion(arm, Service.PLANNER, AlarmCode.PLANNER_LOST)
+    check_no_jump(arm)
+    check_back_to_work(arm)
+
+
+def test_servo_hung_by_sigstop(arm: System):
+    """Servo SIGSTOP (token up, streams stale): FAULT 0x410; after SIGCONT the arm stops, smoothly."""
+    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 20}))
+    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.5,) + (0.0,) * (N - 1)}))
+    since = arm.mark()
+    time.sleep(0.5)
+    pid = arm.pid(Service.SERVO)
+    cause = time.time()
+    with stopped(pid):
+        t, event = arm.event(AlarmCode.SERVO_HUNG, since)
+        latency(f"servo SIGSTOP (threshold {STALE_AFTER[Service.SERVO] * 1e3:.0f} ms)", cause, t)
+        assert event.alarm.type is AlarmType.FAULT and "hangs" in event.alarm.description
+        assert arm.state() & StateBit.ALARM
+        kept = arm.common(OP.clearAlarms)
+        assert kept.id == ReturnCode.STATUS_ERR and "0x410" in kept.comment, kept
+    check_alarm(arm, AlarmCode.SERVO_HUNG, AlarmType.FAULT, servo_on=False)
+    check_queue_discarded(arm)
+    check_no_jump(arm)
+    check_back_to_work(arm)
+
+
+def test_planner_hung_by_sigstop(arm: System):
+    """Planner SIGSTOP at rest: FAULT 0x411 after its threshold; clearable after SIGCONT."""
+    since = arm.mark()
+    cause = time.time()
+    with stopped(arm.pid(Service.PLANNER)):
+        t, event = arm.event(AlarmCode.PLANNER_HUNG, since)
+        latency(f"planner SIGSTOP (threshold {STALE_AFTER[Service.PLANNER] * 1e3:.0f} ms)", cause, t)
+        check_alarm(arm, AlarmCode.PLANNER_HUNG, AlarmType.FAULT, servo_on=False)
+        assert arm.middle(OP.goHome).id in (ReturnCode.STATUS_ERR, ReturnCode.NOT_SV_ON_ERR)
+    check_back_to_work(arm)
+
+
+def test_monitor_list_and_alarm_events_agree(arm: System):
+    """The monitor's AlarmList, getActiveAlarm and the events tell one story (e-stop, then clear)."""
+    lists = arm.session.declare_subscriber(arm.keys.monitor_alarms, zenoh.handlers.FifoChannel(256))
+    try:
+        since = arm.mark()
+        arm.session.put(arm.keys.estop, b"")
+        arm.event(AlarmCode.EMERGENCY_STOP, since)
+        arm.wait_rest()
+        arm.clear()
+        arm.event(AlarmCode.EMERGENCY_STOP, since, AlarmEventKind.CLEARED)
+        seen = []
+        while (s := lists.try_recv()) is not None:
+            seen.append(codec.decode_message(ALARM_LIST, s.payload.to_bytes()))
+        codes = [tuple(a.code for a in lst.alarms) for lst in seen]
+        assert (AlarmCode.EMERGENCY_STOP,) in codes and codes[-1] == (), codes
+        assert all(b.tm.to_seconds() > a.tm.to_seconds() for a, b in zip(seen, seen[1:]))
+        assert [e.event for _, e in arm.events[since:]] == ["raised", "cleared"]
+    finally:
+        lists.undeclare()
+    arm.ok(arm.common(OP.servoON))
