@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)
 
 up: setup
-	$(BIN)/jara-arm up $(ARGS)
+	$(BIN)/jara-arm up --demo $(ARGS)
 
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
@@ -27,6 +27,8 @@ test: setup
 bench: setup
 	$(BIN)/python bench/servo_loop.py
 	$(BIN)/python bench/query_rtt.py
+	$(BIN)/python bench/motion.py
+	$(BIN)/python bench/ik.py
 
 schema: setup
 	$(BIN)/python -m jara_arm.schema.generate

@@ -230,11 +230,15 @@ def pause_latency(b: Bench, n: int) -> str:
         first = int(np.argmax(tc > t_reply))
         index = {tuple(q): i for i, q in enumerate(cmd)}
         seen = [(s.tm.to_seconds(), index[tuple(s.target)]) for s in sts if tuple(s.target) in index]
-        t_seen, i_seen = next((t, i) for t, i in seen if i >= first)
-        lat.append(t_seen - (i_seen - first) * DT - t_reply)
+        after = [(t, i) for t, i in seen if i >= first]
+        if after:  # none if the motion was aborted meanwhile (the servo ran dry): not a pause sample
+            t_seen, i_seen = after[0]
+            lat.append(t_seen - (i_seen - first) * DT - t_reply)
     lat_ms = np.array(lat) * 1e3
+    if not len(lat_ms):
+        return "pause latency: no measurement (every motion was aborted)"
     return (f"pause reply -> servo executes the first braking command: median {np.median(lat_ms):.1f} ms, "
-            f"max {lat_ms.max():.1f} ms over {n} pauses")
+            f"max {lat_ms.max():.1f} ms over {len(lat_ms)} pauses")
 
 
 def ptp_optimality(b: Bench) -> str:

@@ -1,6 +1,6 @@
 """``jara-arm``: run the arm services on this host, one of them, or a bare Zenoh router.
 
-    jara-arm up [--arm ID[:ROBOT]]... [--robot NAME] [--obstacle X,Y,Z,HX,HY,HZ]... [--listen ENDPOINT]...
+    jara-arm up [--arm ID[:ROBOT]]... [--robot NAME] [--demo] [--obstacle X,Y,Z,HX,HY,HZ]... [--listen ENDPOINT]...
                 [--connect ENDPOINT]... [--config ZENOH_CONFIG_FILE] [--multicast] [--log-level LEVEL]
     jara-arm service NAME [the service's own arguments; see jara-arm service NAME --help]
     jara-arm router [--listen ENDPOINT]... [--connect ENDPOINT]... [--config FILE] [--multicast]
@@ -33,6 +33,8 @@ from .services import NAMES, SERVICES, spec
 from .supervisor import StopSignals
 from .up import ArmSpec, UpSettings, run_up
 from .watch import LOG_LEVELS as RECORD_LEVELS
+from .client import ArmClient, ClientError
+from .demo import run_demo
 from .watch import run_alarms, run_logs
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
@@ -57,6 +59,8 @@ class _Parsers:
                              f"(repeatable; default: {DEFAULT_ARM})")
         self.up.add_argument("--robot", default=DEFAULT_ROBOT, choices=list(ROBOTS),
                              help=f"robot model of the arms given without one (default: {DEFAULT_ROBOT})")
+        self.up.add_argument("--demo", action="store_true",
+                             help="once ready, drive every arm through `jara-arm demo`")
         self.up.add_argument("--obstacle", action="append", default=[], type=_obstacle,
                              metavar="X,Y,Z,HX,HY,HZ",
                              help="a fixed box in every arm's simulated world: centre and half extents "
@@ -97,6 +101,14 @@ class _Parsers:
             "every event on JARA_ARM/<arm>/alarm (raised, cleared) as it arrives.")
         _arm_filter(self.alarms)
         _client_zenoh_arguments(self.alarms)
+
+        self.demo = sub.add_parser(
+            "demo", help="drive a running arm through a short, visible sequence",
+            description="Servo on, speeds, PTP, LIN, CIRC, pause/resume, home, servo off, over the "
+            "public interface only; prints each step with its return code and what was measured.")
+        self.demo.add_argument("--arm", type=_arm_id, default=DEFAULT_ARM, metavar="ID",
+                               help=f"the arm to drive (default: {DEFAULT_ARM})")
+        _client_zenoh_arguments(self.demo)
 
 
 def _obstacle(text: str) -> str:
@@ -156,6 +168,8 @@ def command_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, list[s
         return parsers.logs, argv[1:]
     if argv[:1] == ["alarms"]:
         return parsers.alarms, argv[1:]
+    if argv[:1] == ["demo"]:
+        return parsers.demo, argv[1:]
     if argv[:1] == ["service"] and len(argv) >= 2 and argv[1] in NAMES:
         return spec(argv[1]).parser(), argv[2:]
     raise ValueError(f"not a jara-arm command: {' '.join(argv)!r}")
@@ -184,7 +198,8 @@ def _up_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> U
         if any(a.arm == arm for a in arms):
             parser.error(f"--arm {item}: arm {arm!r} is given twice")
         arms.append(ArmSpec(arm, robot))
-    return UpSettings(tuple(arms), _router_settings(args, parser), args.log_level, tuple(args.obstacle))
+    return UpSettings(tuple(arms), _router_settings(args, parser), args.log_level, tuple(args.obstacle),
+                      args.demo)
 
 
 def _setup_logging(level: str) -> None:
@@ -209,6 +224,12 @@ def _listen(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     with session:
         if args.command == "logs":
             return run_logs(session, signals.stop, args.arm, args.service, args.level)
+        if args.command == "demo":
+            try:
+                return 1 if run_demo(ArmClient(session, args.arm), sys.stdout) else 0
+            except ClientError as exc:
+                print(f"jara-arm demo: {exc}", file=sys.stderr)
+                return 1
         return run_alarms(session, signals.stop, args.arm)
 
 
@@ -217,9 +238,9 @@ def _run(argv: list[str]) -> int:
     args = parsers.top.parse_args(argv)
     if args.command == "service":
         return spec(args.name).run(args.args)
-    if args.command in ("logs", "alarms"):
+    if args.command in ("logs", "alarms", "demo"):
         _setup_logging("WARNING")
-        return _listen(args, parsers.logs if args.command == "logs" else parsers.alarms)
+        return _listen(args, getattr(parsers, args.command))
     parser = parsers.up if args.command == "up" else parsers.router
     settings = (_up_settings(args, parser) if args.command == "up"
                 else _router_settings(args, parser))

@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import subprocess
 import sys
 import time
 
@@ -42,6 +43,13 @@ class UpSettings:
     router: RouterSettings
     log_level: str = "INFO"
     obstacles: tuple[str, ...] = ()  # ``x,y,z,hx,hy,hz`` [m], passed to every servo as --obstacle
+    demo: bool = False  # once ready, run ``jara-arm demo`` on every arm (its output on stdout)
+
+
+def demo_argv(arm: ArmSpec, settings: UpSettings) -> list[str]:
+    """``jara-arm demo`` for one arm, a client of the launcher's router."""
+    return [sys.executable, "-m", "jara_arm.launcher", "demo", "--arm", arm.arm,
+            "--connect", local_endpoint(settings.router.endpoints()[0])]
 
 
 def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list[str]:
@@ -108,6 +116,7 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
             for s in SERVICES])
         log.info("router listening on %s; starting %d service process(es)",
                  ", ".join(settings.router.endpoints()), len(supervisor.children))
+        demos: list[subprocess.Popen] = []
         try:
             if not signals.stop.is_set():  # a Ctrl-C while the router opened
                 supervisor.start()
@@ -115,8 +124,14 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
                 logs.drain()
                 readiness.poll()
                 supervisor.poll()
+                if settings.demo and readiness.ready and not demos:
+                    demos = [subprocess.Popen(demo_argv(a, settings)) for a in settings.arms]
             log.info("%s: stopping", signals.name)
         finally:
+            for d in demos:
+                if d.poll() is None:
+                    d.terminate()
+                d.wait(5)
             # Also on an unexpected error: never leave a child behind.
             supervisor.stop(idle=logs.drain, hurry=signals.hurry)
             logs.drain()

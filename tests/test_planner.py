@@ -658,8 +658,9 @@ def test_fifo_estimate_extrapolates_and_reanchors():
     assert fifo.depth(100.005) == pytest.approx(7.0)
     assert fifo.depth(100.1) == 0.0  # never below empty
     fifo.sent(100.1, 10)
-    fifo.sent(100.104, 3)
-    # The servo saw 8 waiting at 100.103 (the last 3 had not arrived): 8 + 3 - 2 cycles since.
+    fifo.sent(100.1048, 3)
+    # The servo counted 8 for its cycle at 100.103; the last 3 are surely not in yet;
+    # 2 cycles since the stamp: 8 + 3 - 2.
     fifo.report(8, 100.103, 100.105)
     assert fifo.depth(100.105) == pytest.approx(9.0)
     fifo.report(4, 50.0, 100.106)  # a stamp from another clock: timed by its arrival

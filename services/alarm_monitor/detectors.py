@@ -99,16 +99,18 @@ class Crossing:
 
     def __init__(self, tolerance: float) -> None:
         self.tolerance = tolerance
+        self._limits: tuple[LimitValue, ...] = ()
         self._lower = self._upper = np.zeros(0)
         self._inside: bool | None = None  # None: not judged since the limits changed
         self.present = False  # beyond the tolerance in the newest sample
 
     def set_limits(self, limits: Sequence[LimitValue]) -> None:
         """New limits: the next sample only says where the arm is; it cannot be a crossing."""
-        lower = np.array([lim.lower for lim in limits], dtype=float)
-        upper = np.array([lim.upper for lim in limits], dtype=float)
-        if lower.shape != self._lower.shape or np.any(lower != self._lower) or np.any(upper != self._upper):
-            self._lower, self._upper = lower, upper
+        limits = tuple(limits)
+        if limits != self._limits:
+            self._limits = limits
+            self._lower = np.array([lim.lower for lim in limits], dtype=float)
+            self._upper = np.array([lim.upper for lim in limits], dtype=float)
             self._inside = None
 
     def reset(self) -> None:

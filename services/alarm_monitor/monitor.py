@@ -30,7 +30,7 @@ from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.keys import ArmKeys, Service, parse_alive
 from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
-from jara_arm.services.planner.kinematics import Kinematics, arm_to_robot
+from jara_arm.services.planner.kinematics import Kinematics, hg_to_se3
 
 from .book import AlarmBook
 from .detectors import (CARTESIAN_LIMIT_TOLERANCE, HUNG_CODE, JOINT_LIMIT_TOLERANCE, LOST_CODE,
@@ -69,6 +69,8 @@ class Monitor:
         self._cartesian = Crossing(CARTESIAN_LIMIT_TOLERANCE)
         self._kinematics = Kinematics(robot, seed_table=0)  # FK only
         self._settings: MotionSettings | None = None
+        self._robot_from_arm = np.eye(4)  # inv(B): arm frame -> robot frame
+        self._tool = np.zeros(3)  # [m] control point in the flange frame (translation of C)
         self._n = n
         self.watches = {s: ServiceWatch(s, STALE_AFTER[s]) for s in (Service.SERVO, Service.PLANNER,
                                                                    Service.COMMAND)}
@@ -132,10 +134,7 @@ class Monitor:
                 self._judge_after = now + SELF_STALL
             last = now
             try:
-                _t0 = time.perf_counter(); _c0 = time.thread_time()
                 self._iterate(now)
-                self._dbg = getattr(self, "_dbg", [0, 0.0, 0.0]); self._dbg[0] += 1; self._dbg[1] += time.perf_counter() - _t0; self._dbg[2] += time.thread_time() - _c0
-                if self._dbg[0] % 1000 == 0: log.warning("DEBUGX iter wall %.1f us cpu %.1f us", self._dbg[1] / self._dbg[0] * 1e6, self._dbg[2] / self._dbg[0] * 1e6)
             except Exception:  # a bug must not end the monitoring: log it, go on
                 log.exception("alarm monitor iteration failed")
 
@@ -236,11 +235,12 @@ class Monitor:
             lim, u = self._joint.limit(axis), self._unit[axis]
             self._raise(AlarmCode.SOFT_LIMIT_JOINT, f"J{axis + 1} = {pos[axis]:.6g} {u} crossed its joint "
                         f"soft limit [{lim.lower:.6g}, {lim.upper:.6g}] {u} (measured, during motion)")
-        s = self._settings
-        if s is None or not self._cartesian.armed:
+        if self._settings is None or not self._cartesian.armed:
             return
-        q = np.asarray(pos[: self._n], dtype=float)
-        p = arm_to_robot(self._kinematics.control_point(q, s.controlPointOffset), s.baseOffset)[:3, 3]
+        # Control point in the robot frame: inv(B) · T_flange(q) · C (its position only).
+        flange = self._kinematics.fk(np.asarray(pos[: self._n], dtype=float))
+        arm_p = flange[:3, :3] @ self._tool + flange[:3, 3]
+        p = self._robot_from_arm[:3, :3] @ arm_p + self._robot_from_arm[:3, 3]
         axis = self._cartesian.update(p)
         if axis is not None:
             lim = self._cartesian.limit(axis)
@@ -253,6 +253,8 @@ class Monitor:
         self._settings = s
         if old is None or not (np.array_equal(old.baseOffset, s.baseOffset)
                                and np.array_equal(old.controlPointOffset, s.controlPointOffset)):
+            self._robot_from_arm = np.linalg.inv(hg_to_se3(s.baseOffset))
+            self._tool = np.asarray(s.controlPointOffset, dtype=float)[:, 3].copy()
             self._cartesian.reset()  # new frames: the next sample only says where the arm is
         self._cartesian.set_limits(s.softLimitCartesian)
 

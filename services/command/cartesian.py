@@ -11,9 +11,16 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from jara_arm.robots import RobotModel
+from jara_arm.robots import Family, RobotModel
 from jara_arm.schema.types import CarPosWithElbow, HgMatrix, LimitValue
 from jara_arm.services.planner.kinematics import Kinematics, arm_to_robot, se3_to_hg
+
+
+def _about_z(r: np.ndarray) -> np.ndarray:
+    """The rotation about Z (3x3) nearest to ``r``."""
+    psi = float(np.arctan2(r[1, 0] - r[0, 1], r[0, 0] + r[1, 1]))
+    c, s = np.cos(psi), np.sin(psi)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def reach(kinematics: Kinematics) -> float:
@@ -63,11 +70,20 @@ class CartesianFeedback:
              control_point_offset: HgMatrix) -> CarPosWithElbow:
         """``inv(B) · T_flange(q) · C`` and, for 7 axes, the measured arm angle [rad] (else 0).
 
+        Per family (SPEC.md §7): a gantry reports where its carriage is (1 axis: X moves,
+        Y, Z and the orientation are those of the model; 2 axes: X and Y move); a SCARA
+        reports its orientation as the rotation about the robot frame's Z axis only (the
+        rotation about Z nearest to the measured one: the same projection as its commands,
+        so a tilted control point offset or base offset adds no X / Y rotation); articulated
+        arms the full pose. ``elbow`` is the measured arm angle on 7 axes, 0 otherwise.
+
         ``joints`` [rad or m] may include the gripper axis after the arm axes; it is ignored.
         """
         q = np.asarray(joints[: self.robot.axis_num], dtype=float)
         t_arm = self.kinematics.control_point(q, control_point_offset)
         hg = se3_to_hg(arm_to_robot(t_arm, base_offset))
+        if self.robot.family is Family.SCARA:
+            hg[:, :3] = _about_z(hg[:, :3])
         # Re-orthonormalise: float error must not make the reply fail the codec's rotation check.
         hg[:, :3] = pin.Quaternion(hg[:, :3]).normalized().toRotationMatrix()
         hg.flags.writeable = False

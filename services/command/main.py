@@ -64,6 +64,9 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
         middle = InterfaceServer(session, keys.interface(Interface.MIDDLE), MIDDLE,
                                  CommandMiddle(core, settings, feedback, cartesian, settings_pub.changed),
                                  "command-middle")
+        alarms = core.monitor.alarm_list()  # a restarted command knows the active alarms at once
+        if alarms is not None:
+            tracker.on_alarms(alarms)
         token = announce(session, keys, Service.COMMAND)
         log.info("command up: arm %s, robot %s (%d axes), queue capacity %d, reach %.3f m", arm,
                  robot.name, robot.axis_num, queue_capacity, settings.reach)
@@ -81,6 +84,8 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
             settings_pub.close()
             state_pub.undeclare()
             log.info("command down")
+    common.join()
+    middle.join()
 
 
 def _positive_int(text: str) -> int:

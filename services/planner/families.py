@@ -17,11 +17,22 @@ which parts of the commanded pose count:
     about X and Y are ignored, so the tool keeps its tilt.
   - ``KEEP`` (1-3 axis gantries): every rotation is ignored; the orientation
     stays the start orientation along the whole path.
-  - ``FREE_X`` (5-axis arms): the commanded orientation is interpolated as
-    given, but IK leaves the rotation about the base X axis free (the
-    orientation a 5-axis arm cannot set when it faces along X). The reached
-    orientation is the commanded one turned about the base X axis; the
-    duration counts the whole commanded rotation.
+  - ``ARM_PLANE`` (5-axis arms, "rotation about X ignored"): a 5-axis arm
+    (J1 yaw about the base z axis, then pitch axes and the tool roll) keeps
+    its roll axis -- the tool's approach axis -- in its own vertical plane,
+    the plane through the base z axis and the flange. The one rotation it
+    cannot set is the one that tilts the approach axis out of that plane:
+    the rotation about ``X_p = n x a`` (``n`` the plane's normal, ``a`` the
+    approach axis), the axis in the arm plane perpendicular to the approach.
+    With the arm facing along the base X axis and the tool pointing down,
+    ``X_p`` is the base X axis -- hence the specification's "rotation about
+    X" -- but it turns with J1 and with the tool's pitch, so it is taken in
+    this arm-plane frame, not the base frame. Every pose handed to IK (the
+    target, and each sample of a LIN / CIRC path, whose orientation is
+    interpolated as commanded) is first turned about ``X_p`` by the least
+    angle that brings its approach axis into the arm plane
+    (:func:`reachable`), then solved exactly (full mask). The position is
+    never changed. The duration counts the whole commanded rotation.
 
 * ``elbow`` -- the 7-axis arm angle is commanded (``CarPosWithElbow.elbow``);
   ignored for 1-6 axes.
@@ -34,16 +45,19 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
+
+import numpy as np
+from numpy.typing import NDArray
 
 from jara_arm.robots import Family, RobotModel
 
-from .kinematics import FULL_MASK, Mask
+from .kinematics import FULL_MASK, Kinematics, Mask
 
 #: Components of a pose task: positions x, y, z, rotations rx, ry, rz (arm base frame axes).
 _XY: Mask = (True, True, False, False, False, False)
 _XYZ: Mask = (True, True, True, False, False, False)
 _SCARA: Mask = (True, True, True, False, False, True)
-_NO_RX: Mask = (True, True, True, False, True, True)
 
 
 class Orientation(enum.Enum):
@@ -52,7 +66,7 @@ class Orientation(enum.Enum):
     FULL = "full"
     YAW = "yaw"
     KEEP = "keep"
-    FREE_X = "free-x"
+    ARM_PLANE = "arm-plane"
 
 
 class CartesianKind(enum.Enum):
@@ -90,7 +104,7 @@ TABLE: dict[tuple[Family, int], tuple[Rule, Rule]] = {
     (Family.CARTESIAN, 2): (_GANTRY_NG, CartesianRule(_XY, Orientation.KEEP, planar=True)),
     (Family.CARTESIAN, 3): (_GANTRY_NG, CartesianRule(_XYZ, Orientation.KEEP)),
     (Family.SCARA, 4): (CartesianRule(_SCARA, Orientation.YAW),) * 2,
-    (Family.ARTICULATED, 5): (CartesianRule(_NO_RX, Orientation.FREE_X),) * 2,
+    (Family.ARTICULATED, 5): (CartesianRule(FULL_MASK, Orientation.ARM_PLANE),) * 2,
     (Family.ARTICULATED, 6): (_FULL, _FULL),
     (Family.ARTICULATED, 7): (CartesianRule(FULL_MASK, Orientation.FULL, elbow=True),) * 2,
 }
@@ -106,3 +120,66 @@ def rule(model: RobotModel, kind: CartesianKind) -> Rule:
     if isinstance(r, Refused):
         return Refused(r.why.format(n=n, kind=kind.value))
     return r
+
+
+# ---------------------------------------------------------------------- 5-axis arm plane
+
+#: Below this horizontal distance [m] of the flange from the J1 axis, or this sine of the
+#: approach axis from the arm plane's normal, the arm plane is undefined: the pose is left as it is.
+_PLANE_EPS = 1e-9
+
+
+@functools.lru_cache(maxsize=None)
+def _approach_axis(kin: Kinematics) -> tuple[float, float, float]:
+    """The last axis (the tool roll) as a unit vector in the flange frame (constant: it turns with the flange)."""
+    q = np.asarray(kin.robot.ready_pose, dtype=float)
+    w = kin.jacobian(q)[3:, -1]
+    a = kin.fk(q)[:3, :3].T @ w
+    return tuple(float(x) for x in a / np.linalg.norm(a))  # type: ignore[return-value]
+
+
+def _rotate(axis: NDArray[np.float64], cos: NDArray[np.float64], sin: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rotation matrices (N, 3, 3) about unit ``axis`` (N, 3) by the angle of (cos, sin) (Rodrigues)."""
+    K = np.zeros((len(axis), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = axis[:, 2], -axis[:, 1], axis[:, 0]
+    return np.eye(3) + sin[:, None, None] * K + (1.0 - cos)[:, None, None] * (K @ K)
+
+
+def reachable(rule: CartesianRule, kin: Kinematics, targets: NDArray[np.float64],
+              tool: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``targets`` (4x4 or (N, 4, 4) control-point poses, arm base frame) as IK must meet them.
+
+    Identity except for ``ARM_PLANE``: each orientation turned about the arm-plane X axis
+    ``X_p`` by the least angle that puts the approach axis into the arm plane (module docstring).
+    The plane goes through the flange, which moves with the orientation when the control
+    point is off the flange axis; a few fixed-point rounds settle it.
+    """
+    if rule.orientation is not Orientation.ARM_PLANE:
+        return targets
+    single = targets.ndim == 2
+    T = np.array(targets[None] if single else targets, dtype=float)
+    a_f = np.array(_approach_axis(kin))
+    rc, tc = tool[:3, :3], tool[:3, 3]
+    r_cmd = T[:, :3, :3] @ rc.T  # commanded flange orientations
+    a = r_cmd @ a_f  # commanded approach axes
+    r_flange = r_cmd
+    for _ in range(4):
+        p_f = T[:, :3, 3] - r_flange @ tc
+        n = np.stack([-p_f[:, 1], p_f[:, 0], np.zeros(len(p_f))], axis=1)  # base z x p_f
+        ok = np.linalg.norm(n, axis=1) > _PLANE_EPS
+        n[ok] /= np.linalg.norm(n[ok], axis=1)[:, None]
+        an = np.einsum("ij,ij->i", a, n)
+        axis = np.cross(a, n)  # X_p, up to sign and length
+        s = np.linalg.norm(axis, axis=1)
+        ok &= s > _PLANE_EPS
+        axis[ok] /= s[ok, None]
+        axis[~ok] = (1.0, 0.0, 0.0)
+        sin = np.where(ok, -an, 0.0)  # turn by -asin(a.n): a loses its component along n
+        new = _rotate(axis, np.sqrt(1.0 - sin * sin), sin) @ r_cmd
+        done = np.abs(new - r_flange).max() < 1e-15
+        r_flange = new
+        if done or not tc.any():
+            break
+    T[:, :3, :3] = r_flange @ rc
+    return T[0] if single else T

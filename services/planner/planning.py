@@ -308,7 +308,8 @@ class MotionPlanner:
         self._check_box(s, T1[None, :3, 3], req.op)
         _, elbow = self._elbow_target(cp, start, relative, rule)
         lo, hi = self._soft_limits(s)
-        res = self.kin.ik(frames.base @ T1, start[:self.n], tool=frames.tool, elbow=elbow,
+        target = families.reachable(rule, self.kin, frames.base @ T1, frames.tool)
+        res = self.kin.ik(target, start[:self.n], tool=frames.tool, elbow=elbow,
                           mask=rule.mask, tol_pos=IK_TOLERANCE, tol_rot=IK_TOLERANCE, lower=lo, upper=hi)
         if not res.success:
             raise PlanRefused(ReturnCode.VALUE_ERR,
@@ -391,7 +392,7 @@ class MotionPlanner:
         """Joints (N, dof) at robot-frame poses (N, 4, 4), warm-started sample to sample."""
         n, kin, tool, mask = self.n, self.kin, frames.tool, rule.mask
         e0, e1 = elbows
-        targets = np.einsum("ij,njk->nik", frames.base, poses)
+        targets = families.reachable(rule, kin, np.einsum("ij,njk->nik", frames.base, poses), tool)
         q = np.repeat(start[None, :], len(poses), axis=0)  # gripper column kept as it is
         prev = start[:n]
         for k in range(1, len(poses)):

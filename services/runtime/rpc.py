@@ -103,8 +103,15 @@ class InterfaceServer:
         query.reply(key, body, encoding=_ZENOH_ENCODING[encoding])
 
     def close(self) -> None:
+        """Stop serving. The worker may sit in ``recv()``, which holds the queryable; it
+        ends when the session closes, so call :meth:`join` after the session's block."""
         try:
             self._queryable.undeclare()
-        except Exception:  # recv() may hold it; closing the session ends the worker then
+        except Exception:
             pass
         self._thread.join(timeout=0.2)
+
+    def join(self, timeout: float = 2.0) -> None:
+        """Wait for the worker to end (after the session closed): a thread still inside
+        Zenoh's ``recv()`` when the interpreter exits aborts the process."""
+        self._thread.join(timeout)

@@ -95,3 +95,31 @@ def _phase_positions(phases: list[tuple[float, float, float, float, float]]) -> 
                 out.append(p + v * t + a * t * t / 2.0 + j * t ** 3 / 6.0)
         out.append(p + v * dt + a * dt * dt / 2.0 + j * dt ** 3 / 6.0)
     return out
+
+
+class Glide:
+    """A short, smooth move of the target alone, from ``q0`` to ``q1`` [rad or m] (half cosine).
+
+    Lets go of a push: when the arm is blocked (an obstacle), its target is
+    brought back to where the arm is, and the force it pushes with fades over
+    ``duration`` [s] instead of dropping at once (which would let the arm and
+    what it presses on spring back).
+    """
+
+    def __init__(self, q0: np.ndarray, q1: np.ndarray, duration: float, dt: float) -> None:
+        self._q0 = np.array(q0, dtype=float)
+        self._dq = np.array(q1, dtype=float) - self._q0
+        self._w = math.pi / duration  # [rad/s]
+        self.duration = duration
+        self._dt = dt
+        self._t = 0.0
+
+    def next(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+        """The next cycle's (q, qd, qdd) and whether the target has arrived."""
+        self._t = min(self._t + self._dt, self.duration)
+        w, t = self._w, self._t
+        q = self._q0 + self._dq * (1.0 - math.cos(w * t)) / 2.0
+        done = self._t >= self.duration
+        if done:
+            return q, np.zeros_like(q), np.zeros_like(q), True
+        return q, self._dq * w * math.sin(w * t) / 2.0, self._dq * w * w * math.cos(w * t) / 2.0, False

@@ -44,7 +44,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.monitor_link import is_newer
 
-from .braking import Braking
+from .braking import Braking, Glide
 from .world import World
 
 log = logging.getLogger(__name__)
@@ -81,6 +81,8 @@ REPORT_AGAIN = 0.5
 #: After a stop for an alarm, a target this far from the measured joints means the
 #: arm is blocked (an obstacle): the servo then holds it where it is, not pushing on [rad or m].
 RELAX_TOLERANCE = 0.01
+#: ... bringing the target there in this time, so that the push fades rather than drops [s].
+RELAX_TIME = 0.2
 
 
 def _realtime_thread(priority: int) -> None:
@@ -154,7 +156,7 @@ class ServoLoop:
         self._monitor_list: AlarmList | None = None
 
         self._fifo: collections.deque[np.ndarray] = collections.deque()
-        self._braking: Braking | None = None
+        self._braking: Braking | Glide | None = None  # a stop, or letting go of a push
         self._interrupted = False  # the stream ran dry mid-motion; wait for a consistent command
         self._cmd_moving = False  # the commanded velocity qd is not all zero
         self._calls: collections.deque[tuple[Callable[[], Any], concurrent.futures.Future]] = collections.deque()
@@ -309,6 +311,8 @@ class ServoLoop:
             cmd = self._fifo.popleft()
             self.consumed += 1
             self._follow(cmd)
+            if self._braking is not None:  # the command was refused: the stop starts this cycle,
+                self._advance()  # not one cycle later with the target standing still (a jerk)
             return
         if self._cmd_moving and self.servo_on and not self.alarmed and np.any(np.abs(self.qd) > REST_SPEED):
             self.underruns += 1
@@ -328,8 +332,9 @@ class ServoLoop:
 
         Otherwise the drives would keep pushing the arm into whatever stopped it
         (at up to their peak effort) and an overload could never go away. The
-        target steps to where the arm already is, so nothing moves. The gripper
-        axis keeps its target: it may be holding a part.
+        target glides to where the arm already is in ``RELAX_TIME``, so nothing
+        moves and the push fades. The gripper axis keeps its target: it may be
+        holding a part.
         """
         n = self.model.axis_num
         gap = np.abs(self.q[:n] - self.fb_pos[:n])
@@ -337,8 +342,9 @@ class ServoLoop:
             i = int(np.argmax(gap))
             log.warning("the arm stopped %.3g away from its target (J%d): blocked; holding it where it is",
                         gap[i], i + 1)
-            self.q = self.q.copy()
-            self.q[:n] = self.fb_pos[:n]
+            target = self.q.copy()
+            target[:n] = self.fb_pos[:n]
+            self._braking = Glide(self.q, target, RELAX_TIME, self.dt)
 
     def _inside_soft_limits(self, q: np.ndarray) -> np.ndarray:
         """``q`` with the arm axes clamped into the soft limits.
@@ -581,6 +587,6 @@ class ServoLoop:
             float(np.percentile(lat, 99)), float(lat.max()), st.late, st.overruns,
             len(self._fifo), st.underruns, tuple(int(c) for c in hist))
         self._health_pub.put(codec.encode_message(messages.LOOP_HEALTH, msg))
-        if st.late > 0.01 * max(1, len(st.lateness)) or st.overruns:
+        if st.late + st.overruns > 0.01 * max(1, len(st.lateness)):  # the 1 % budget
             log.warning("servo loop: %d of %d cycles late by more than one period, %d overruns, "
                         "max lateness %.2f ms", st.late, len(st.lateness), st.overruns, lat.max() * 1e3)

@@ -14,12 +14,14 @@ import zenoh
 
 from jara_arm.robots import Obstacle, RobotModel, RobotModelError
 from jara_arm.schema.codec import Reply
+from jara_arm.schema.alarms import format_code
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
+from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer, ok, refuse
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
@@ -50,7 +52,7 @@ class ServoCommon:
             cleared, kept = self.loop.call(self.loop.clear_alarms_now)
             fallback = clear_reply(cleared, kept)
             return Reply(fallback.id, f"{fallback.comment} ({NO_MONITOR})")
-        self._refresh()  # the latches the monitor cleared are released before the reply
+        self.refresh()  # the latches the monitor cleared are released before the reply
         return reply
 
     def getActiveAlarm(self) -> Reply:
@@ -59,7 +61,7 @@ class ServoCommon:
             return ok(f"OK ({NO_MONITOR})", alarms=self.loop.alarms)
         return reply
 
-    def _refresh(self) -> bool:
+    def refresh(self) -> bool:
         """Adopt the monitor's current list now (not when its publication arrives); False if silent."""
         alarms = self.monitor.alarm_list()
         if alarms is None:
@@ -85,7 +87,7 @@ class ServoCommon:
 
     def servoON(self) -> Reply:
         why = self.loop.call(self.loop.servo_on_now)
-        if why and self.loop.monitor_alarms and self._refresh():
+        if why and self.loop.monitor_alarms and self.refresh():
             why = self.loop.call(self.loop.servo_on_now)  # alarms just cleared through another interface
         return refuse(ReturnCode.STATUS_ERR, f"servoON refused: {why}") if why else ok()
 
@@ -113,9 +115,14 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
     with service_session(conf, arm, Service.SERVO) as (session, keys):
         loop = ServoLoop(robot, session, keys, realtime_priority, tuple(obstacle or ()))
         loop.start()
-        server = InterfaceServer(session, keys.servo_common(), COMMON,
-                                 ServoCommon(loop, MonitorLink(session, keys)), "servo-rpc")
+        common = ServoCommon(loop, MonitorLink(session, keys))
+        server = InterfaceServer(session, keys.servo_common(), COMMON, common, "servo-rpc")
+        if common.refresh():  # a restarted servo knows the active alarms before it says it is up
+            log.info("active alarms from the alarm monitor: %s",
+                     ", ".join(format_code(a.code) for a in loop.monitor_alarms) or "none")
         token = announce(session, keys, Service.SERVO)
+        # Zenoh's receive threads feed the FIFO: starved, they make it run dry.
+        realtime_process(max(0, realtime_priority - 1), "servo")
         log.info("servo up: arm %s, robot %s (%d axes%s), cycle %d ms", arm, robot.name,
                  robot.axis_num, " + gripper" if robot.has_gripper else "", robot.cmd_cycle_ms)
         for box in loop.world.obstacles:
@@ -129,6 +136,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
             server.close()
             loop.stop()
             log.info("servo down")
+    server.join()
 
 
 def obstacle_argument(text: str) -> Obstacle:
