@@ -27,6 +27,7 @@ test: setup
 bench: setup
 	$(BIN)/python bench/servo_loop.py
 	$(BIN)/python bench/query_rtt.py
+	$(BIN)/python bench/alarm_latency.py --repeat 3
 	$(BIN)/python bench/motion.py
 	$(BIN)/python bench/ik.py
 

@@ -5,8 +5,10 @@ Measures, and prints one line each:
 * reply -> motion: from the ``Planner/plan`` reply to the first feedback sample
   that has left the start (PTP from rest, 50 %), median / max over ``--n`` moves;
 * planning time to the first streamed command, from the request, for a 0.5 m
-  LIN and a half-circle CIRC (radius 0.15 m) at 0.25 m/s, and the planner's
-  own planning time (its log);
+  LIN and a half-circle CIRC (radius 0.15 m) at 0.25 m/s, the planner's own
+  planning time (its log), and the same two motions planned in this process
+  (``MotionPlanner.plan``, median wall and least CPU time of 9: the planning
+  cost without the services and the machine's other load);
 * deviation of those moves from the ideal line / circle: planned (FK of the
   position commands) and executed (FK of the feedback);
 * pause latency: from the ``pause`` reply to the servo consuming the first
@@ -49,6 +51,7 @@ from jara_arm.schema.planner import (
 )
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
 from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.profile import ProfileLimits
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
@@ -185,7 +188,8 @@ def cartesian(b: Bench) -> list[str]:
     bb = a + [0.0, 0.5, 0.0]
     b.drain()
     t0 = time.time()
-    m, reply = b.plan(OP.moveLinearCartesianAbs, {"carPoint": car(bb, R0)})
+    lin_args = {"carPoint": car(bb, R0)}
+    m, reply = b.plan(OP.moveLinearCartesianAbs, lin_args)
     t_reply = time.time()
     b.wait_done(m)
     tc, cmd, _, fb, _ = b.drain()
@@ -198,7 +202,8 @@ def cartesian(b: Bench) -> list[str]:
     c = bb + [0.0, -r, 0.0]
     via, target = c + [r, 0.0, 0.0], c + [0.0, -r, 0.0]
     t0 = time.time()
-    m, reply = b.plan(OP.moveCircularCartesianAbs, {"carPointR": car(via, R0), "carPointT": car(target, R0)})
+    circ_args = {"carPointR": car(via, R0), "carPointT": car(target, R0)}
+    m, reply = b.plan(OP.moveCircularCartesianAbs, circ_args)
     t_reply = time.time()
     b.wait_done(m)
     tc, cmd, _, fb, _ = b.drain()
@@ -211,7 +216,28 @@ def cartesian(b: Bench) -> list[str]:
                f"{1e3 * (t_reply - t0):.0f} ms, request -> first command {1e3 * (tc[0] - t0):.0f} ms; "
                f"deviation planned {circ_dev(b.tcp(cmd)) * 1e6:.3f} µm, "
                f"executed {circ_dev(b.tcp(fb)) * 1e6:.1f} µm")
+    out.append(in_process(b, q0, a, lin_args, circ_args))
     return out
+
+
+def in_process(b: Bench, q0: np.ndarray, a: np.ndarray, lin_args: dict, circ_args: dict) -> str:
+    """The LIN and the CIRC of :func:`cartesian` planned here, the LIN from a LIN ready pose -> its start."""
+    planner = MotionPlanner(MODEL)
+    R0 = b.kin.control_point(q0)[:3, :3]
+    plan = lambda op, args, q: planner.plan(MotionRequest(0, op, args, b.settings()), q)  # noqa: E731
+    qa = plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)}, q0).end
+    qb = plan(OP.moveLinearCartesianAbs, lin_args, qa).end
+    out = []
+    for name, op, args, q in (("LIN", OP.moveLinearCartesianAbs, lin_args, qa),
+                              ("CIRC", OP.moveCircularCartesianAbs, circ_args, qb)):
+        wall, cpu = [], []
+        for _ in range(9):
+            t, c = time.perf_counter(), time.process_time()
+            plan(op, args, q)
+            wall.append(time.perf_counter() - t)
+            cpu.append(time.process_time() - c)
+        out.append(f"{name} median {1e3 * float(np.median(wall)):.1f} ms (CPU {1e3 * min(cpu):.1f} ms)")
+    return "planned in this process: " + ", ".join(out)
 
 
 def pause_latency(b: Bench, n: int) -> str:

@@ -23,7 +23,6 @@ import os
 import re
 import signal
 import sys
-import threading
 import time
 from collections.abc import Iterator
 
@@ -152,7 +151,10 @@ class System:
                 if e.event == kind.value and e.alarm.code == code:
                     return t, e
             return None
-        return wait_until(find, timeout, 0.002, f"{kind.value} event of 0x{code:02x}; got {self.events[since:]}")
+        try:
+            return wait_until(find, timeout, 0.002, f"{kind.value} event of 0x{code:02x}")
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}; events {self.events[since:]}; log:\n{self.log_tail()}") from None
 
     # -- motion -------------------------------------------------------------------
     def send(self, q: np.ndarray) -> float:
@@ -160,7 +162,22 @@ class System:
         self.pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time.now(), tuple(map(float, q)))))
         return time.time()
 
-    def stream(self, points: np.ndarray, lead: int = 5) -> list[float]:
+    def target(self) -> np.ndarray:
+        """The joints the servo holds the arm at: where a low-level stream must start."""
+        self.statuses()
+        return np.array(wait_until(lambda: self.statuses()[-1:], 1.0, 0.005, "a servo status")[-1].target)
+
+    def consumed(self) -> int:
+        """How many position commands the servo has taken from its FIFO so far."""
+        return wait_until(lambda: self.statuses()[-1:], 1.0, 0.005, "a servo status")[-1].consumed
+
+    def consumed_at(self, statuses: list[messages.ServoStatus], count: int) -> float:
+        """When [s, servo clock] the servo took its ``count``-th command (one per cycle)."""
+        before = [s for s in statuses if s.consumed < count]
+        assert before and any(s.consumed >= count for s in statuses), "command not seen consumed"
+        return before[-1].tm.to_seconds() + (count - before[-1].consumed) * DT
+
+    def stream(self, points: np.ndarray, lead: int = 50) -> list[float]:
         """Publish ``points`` in real time, ``lead`` commands ahead of the servo; their publication times."""
         sent = []
         t0 = time.monotonic()
@@ -180,10 +197,20 @@ class System:
         return wait_until(lambda: (r := self.common(OP.clearAlarms)).id == ReturnCode.OK and r, timeout, 0.05,
                           "clearAlarms to succeed")
 
-    def goto(self, q: np.ndarray, speed: int = 60) -> None:
+    def goto(self, q: np.ndarray, speed: int = 60, attempts: int = 3) -> None:
+        """A PTP to ``q``, run to its end (again if the planner gave up on it on a busy machine)."""
         self.ok(self.middle(OP.setSpeedJoint, {"spdRatio": speed}))
-        self.ok(self.middle(OP.movePTPJointAbs, {"jointPoints": tuple(map(float, q))}))
-        self.wait_rest()
+        for _ in range(attempts):
+            self.ok(self.middle(OP.movePTPJointAbs, {"jointPoints": tuple(map(float, q))}))
+            self.wait_rest()
+            off = np.abs(self.joints() - q).max()
+            if off < 2e-3:
+                return
+        raise AssertionError(f"the PTP stopped {off:.4f} short of its target:\n{self.log_tail()}")
+
+    def log_tail(self, lines: int = 30) -> str:
+        """The launcher's last lines (the services' logs), loop timing reports left out."""
+        return "\n".join([line for line in self.proc.lines if "servo loop:" not in line][-lines:])
 
     def reset(self) -> None:
         """At rest, no alarm, default limits, servo on, at the ready pose."""
@@ -291,7 +318,6 @@ def check_back_to_work(arm: System, servo_on_needed: bool = True) -> None:
     arm.ok(arm.common(OP.servoON))
     assert arm.state() == StateBit.SERVO_ON and arm.servo(OP.getState)["state"] == StateBit.SERVO_ON
     arm.goto(READY)
-    assert np.abs(arm.joints() - READY).max() < 2e-3
 
 
 def min_jerk(q0: np.ndarray, q1: np.ndarray, duration: float) -> np.ndarray:
@@ -326,7 +352,7 @@ def test_estop_during_a_lin(arm: System):
         arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": down}))
         since = arm.mark()
         time.sleep(0.6)  # in the middle of the first LIN
-        assert arm.state() & StateBit.MOVING
+        assert arm.state() & StateBit.MOVING, arm.log_tail()
         cause = time.time()
         arm.session.put(arm.keys.estop, b"")
         t, event = arm.event(AlarmCode.EMERGENCY_STOP, since)
@@ -350,11 +376,19 @@ def test_estop_during_a_lin(arm: System):
 
 def test_driven_into_an_obstacle(arm: System):
     """Overload: WARNING 0x02, servo stays on, the arm stops and stops pushing, queue gone."""
-    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 15}))
-    since = arm.mark()
-    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.8,) + (0.0,) * (N - 1)}))
-    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.1,) + (0.0,) * (N - 1)}))
-    t, event = arm.event(AlarmCode.OVERLOAD, since, timeout=10)
+    for attempt in range(3):  # again if the planner gave up on the move before the box
+        arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 15}))
+        since = arm.mark()
+        arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.8,) + (0.0,) * (N - 1)}))
+        arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.1,) + (0.0,) * (N - 1)}))
+        start = time.monotonic()
+        wait_until(lambda: arm.events[since:] or (time.monotonic() - start > 0.5
+                                                  and not arm.state() & StateBit.MOVING),
+                   10, 0.01, "an alarm or the end of the moves")
+        if arm.events[since:] or attempt == 2:
+            break
+        arm.goto(READY)
+    t, event = arm.event(AlarmCode.OVERLOAD, since, timeout=1)
     rating = np.array(IIWA.rated_effort)
     above = [s for s in arm.statuses() if np.any(np.abs(s.effort[:N]) > rating)]
     assert above, "no status sample above the rating"
@@ -364,9 +398,9 @@ def test_driven_into_an_obstacle(arm: System):
     check_queue_discarded(arm)
     # From the alarm on (the impact itself is the box's doing). The arm presses on the box
     # while it stops and while the push fades: PyBullet's contact makes the measured joints
-    # chatter a little, so the bound is looser than for a stop in free space; a step would be
-    # hundreds of rad/s^2.
-    q = check_no_jump(arm, since=t, allowed=AMAX * 3.0)
+    # chatter (2-3 x the limits seen), so the bound is looser than for a stop in free space;
+    # a step would be hundreds of rad/s^2.
+    q = check_no_jump(arm, since=t, allowed=AMAX * 4.0)
     assert 0.15 < q[0] < 0.6, q  # stopped by the box, long before the target (0.8)
     # Held where it stopped, not pushing: the effort falls back below the rating.
     arm.mark()
@@ -379,14 +413,16 @@ def test_driven_into_an_obstacle(arm: System):
 
 def test_position_stream_that_jumps(arm: System):
     """A jump in a low-level stream: FAULT 0x03, not applied, servo off, stop without a jump."""
-    q0 = arm.joints()
+    q0 = arm.target()
     path = min_jerk(q0, q0 + np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)
     jump = 300
     path[jump:, 2] += VMAX[2] * DT * OVERSPEED_MARGIN * 3  # J3 jumps, then goes on from there
     since = arm.mark()
+    base = arm.consumed()
     sent = arm.stream(path[: jump + 50])
     t, event = arm.event(AlarmCode.OVERSPEED, since)
-    latency("jump in the stream (publication)", sent[jump], t)
+    time.sleep(0.05)
+    latency("jump in the stream (servo takes it)", arm.consumed_at(arm.statuses(), base + jump + 1), t)
     assert event.alarm.type is AlarmType.FAULT and "J3" in event.alarm.description
     check_alarm(arm, AlarmCode.OVERSPEED, AlarmType.FAULT, servo_on=False)
     q = check_no_jump(arm, since=sent[0])
@@ -396,20 +432,22 @@ def test_position_stream_that_jumps(arm: System):
 
 def test_position_stream_that_leaves_the_joint_soft_limits(arm: System):
     """A stream through a joint soft limit: WARNING 0x04; the servo stops in front of it, servo on."""
-    q0 = arm.joints()
+    q0 = arm.target()
     limits = list(IIWA.hard_limits)
     limits[0] = LimitValue(upper=q0[0] + 0.5, lower=q0[0] - 0.1)
     arm.ok(arm.common(OP.setSoftLimitJoint, {"softLimit": limits}))
     path = min_jerk(q0, q0 - np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)  # through the lower limit
     since = arm.mark()
+    base = arm.consumed()
     sent = arm.stream(path)
     t, event = arm.event(AlarmCode.SOFT_LIMIT_JOINT, since)
     # The servo refuses the first command from which it could not stop before the limit
-    # (its description names it): that command is the cause.
+    # (its description names it): the cycle it takes that command is the cause.
     refused = float(re.search(r"J1=(\S+) ", event.alarm.description)[1])
     first = int(np.argmin(np.abs(path[:, 0] - refused)))
     assert abs(path[first, 0] - refused) < 1e-5 and path[first, 0] > limits[0].lower
-    latency("joint soft limit (publication)", sent[first], t)
+    time.sleep(0.05)
+    latency("joint soft limit (servo takes it)", arm.consumed_at(arm.statuses(), base + first + 1), t)
     assert event.alarm.type is AlarmType.WARNING
     check_alarm(arm, AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING, servo_on=True)
     # A stop in front of a limit may use the planner's peak deceleration (servo LIMIT_STOP_ACCEL).
@@ -420,7 +458,7 @@ def test_position_stream_that_leaves_the_joint_soft_limits(arm: System):
 
 def test_control_point_crosses_the_cartesian_soft_limits(arm: System):
     """A stream that lifts the tool above the Cartesian box: WARNING 0x05, kept while outside."""
-    q0 = arm.joints()
+    q0 = arm.target()
     z0 = arm.kin.fk(q0)[2, 3]
     c = arm.cart_limits
     box = {"xLimit": c["xLimit"], "yLimit": c["yLimit"], "zLimit": LimitValue(upper=z0 + 0.03, lower=c["zLimit"].lower)}
@@ -429,7 +467,7 @@ def test_control_point_crosses_the_cartesian_soft_limits(arm: System):
     q1 = q0 + np.array([0.0, -0.4, 0.0, 0.3, 0.0, 0.0, 0.0])
     assert arm.kin.fk(q1)[2, 3] > z0 + 0.06, "the test motion must lift the flange"
     since = arm.mark()
-    arm.stream(min_jerk(q0, q1, 0.8))
+    arm.stream(min_jerk(q0, q1, 0.8), lead=50)
     t, event = arm.event(AlarmCode.SOFT_LIMIT_CARTESIAN, since)
     tm, q = arm.feedback()
     z = np.array([arm.kin.fk(x[:N])[2, 3] for x in q])
@@ -538,3 +576,84 @@ def test_monitor_list_and_alarm_events_agree(arm: System):
     finally:
         lists.undeclare()
     arm.ok(arm.common(OP.servoON))
+
+
+# ---------------------------------------------------------------------------- the monitor's logic (no process)
+
+
+def test_book_clears_only_what_has_no_cause():
+    from jara_arm.schema.alarms import AlarmReport, make_alarm
+    from jara_arm.services.alarm_monitor.book import AlarmBook
+
+    book = AlarmBook()
+    estop = make_alarm(AlarmCode.EMERGENCY_STOP, "e-stop")
+    jump = make_alarm(AlarmCode.OVERSPEED, "jump")
+    assert book.raise_alarm(estop) and not book.raise_alarm(estop)  # one per code
+    assert book.report(AlarmReport(jump, True, Service.SERVO.value))  # still braking
+    assert book.report(AlarmReport(estop, True, Service.SERVO.value)) is False
+    cleared, kept = book.clear(lambda code: False)
+    assert cleared == [] and kept == [estop, jump]  # the servo says both causes are present
+    book.report(AlarmReport(estop, False, Service.SERVO.value))
+    cleared, kept = book.clear(lambda code: code == AlarmCode.OVERSPEED)  # the monitor sees one
+    assert cleared == [estop] and kept == [jump]
+    book.report(AlarmReport(jump, False, Service.SERVO.value))
+    assert book.clear(lambda code: False) == ([jump], []) and book.alarms == ()
+
+
+def test_rating_debounce_and_crossing():
+    from jara_arm.services.alarm_monitor.detectors import AboveRating, Crossing
+
+    over = AboveRating((10.0, 20.0), margin=1.0, samples=3)
+    assert [over.update(v) for v in ((11, 0), (11, 0), (0, 0), (11, 0), (11, 25), (11, 25))] == \
+        [None, None, None, None, None, 0]  # axis 0 trips on its third sample in a row, not before
+    assert over.update((11, 0)) is None and over.present  # tripped once per episode
+    over.update((0, 0))
+    assert not over.present
+
+    cross = Crossing(tolerance=0.01)
+    cross.set_limits((LimitValue(1.0, -1.0),))
+    assert cross.update((1.5,)) is None  # beyond already when the limits came: not a crossing
+    assert cross.update((0.5,)) is None and not cross.present
+    assert cross.update((1.005,)) is None  # within the tolerance
+    assert cross.update((1.02,)) == 0 and cross.present
+    cross.set_limits((LimitValue(2.0, -1.0),))  # widened: the arm is inside again
+    assert cross.update((1.02,)) is None and not cross.present
+
+
+def test_service_watch_lost_and_stale():
+    from jara_arm.services.alarm_monitor.detectors import ServiceWatch
+
+    watch = ServiceWatch(Service.SERVO, stale_after=0.05)
+    assert not watch.token(True, now=10.0) and not watch.stale(10.04)
+    assert watch.stale(10.06)  # up, never heard: silent since its token appeared
+    watch.heard(10.06)
+    assert not watch.stale(10.1) and watch.stale(10.2)
+    assert watch.token(False, now=10.3) and not watch.stale(11.0)  # gone is lost, not hung
+
+
+def test_newer_alarm_lists():
+    from jara_arm.schema.alarms import AlarmList
+    from jara_arm.services.runtime.monitor_link import is_newer
+
+    a = AlarmList(Time(100, 0), Time(50, 0), ())
+    later = AlarmList(Time(100, 1), Time(50, 0), ())
+    restarted = AlarmList(Time(90, 0), Time(80, 0), ())  # a new monitor wins even if its clock lags
+    assert is_newer(a, None) and is_newer(later, a) and not is_newer(a, later) and is_newer(restarted, later)
+
+
+def test_braking_extrema_and_glide():
+    from jara_arm.services.servo.braking import Braking, Glide
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        a = rng.uniform(3, 15, 3)
+        b = Braking(rng.normal(size=3), rng.uniform(-2, 2, 3), rng.uniform(-1, 1, 3) * a, a, a / 0.02, DT,
+                    synchronized=bool(rng.integers(2)))
+        low, high = b.extrema()
+        samples = np.array([b._traj.at_time(t)[0] for t in np.arange(0.0, b.duration + 1e-4, 1e-4)])
+        assert np.allclose(samples.min(axis=0), low, atol=1e-7) and np.allclose(samples.max(axis=0), high, atol=1e-7)
+    glide = Glide(np.zeros(2), np.array([0.02, -0.01]), 0.2, DT)
+    steps = [glide.next() for _ in range(200)]
+    assert steps[-1][3] and np.allclose(steps[-1][0], [0.02, -0.01])
+    acc = np.array([s[2] for s in steps])
+    assert np.abs(acc).max() <= np.pi**2 / 2 * 0.02 / 0.2**2 + 1e-9  # a gentle half cosine

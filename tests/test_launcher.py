@@ -17,6 +17,7 @@ import pytest
 
 from jara_arm.launcher import cli, supervisor, up
 from jara_arm.launcher.router import RouterSettings, local_endpoint
+from jara_arm.launcher.services import NAMES
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.keys import Service
 
@@ -58,7 +59,7 @@ def launcher(*args: str) -> Iterator[tuple[Proc, int]]:
     port = free_port()
     proc = Proc([*LAUNCHER, "up", "--listen", endpoint(port), *args])
     try:
-        proc.wait_for_line("jara-arm: ready", timeout=30)
+        proc.wait_for_line("jara-arm: ready", timeout=60)
         yield proc, port
     finally:
         proc.stop(signal.SIGINT)
@@ -67,20 +68,25 @@ def launcher(*args: str) -> Iterator[tuple[Proc, int]]:
                 os.kill(pid, signal.SIGKILL)
 
 
-@pytest.mark.timeout(40)
+def pid_of(proc: Proc, service: str, arm: str = "arm0") -> int:
+    """The pid of the newest process of ``service`` of ``arm`` the launcher started."""
+    return [pid for s, a, pid in started_pids(proc) if (s, a) == (service, arm)][-1]
+
+
+@pytest.mark.timeout(60)
 def test_up_serves_and_prints_logs() -> None:
     with launcher() as (proc, port):
         proc.wait_for_line("arm0/servo: servo up", timeout=10)
         ready = [line for line in proc.lines if "ready" in line]
         assert len(ready) == 1, proc.output
-        assert "arm0 (iiwa): servo" in ready[0] and f"listening on {endpoint(port)}" in ready[0]
+        assert f"arm0 (iiwa): {', '.join(NAMES)}" in ready[0] and f"listening on {endpoint(port)}" in ready[0]
         with client_session(port) as session:
             assert Client(session).servo("getState").id == ReturnCode.OK
             # The liveliness tokens reach clients of the router too.
             wait_alive(session, "arm0", [Service.SERVO], timeout=5)
 
 
-@pytest.mark.timeout(40)
+@pytest.mark.timeout(90)
 def test_two_arms_with_their_own_robots() -> None:
     with launcher("--arm", "a1", "--arm", "a2:panda") as (proc, port):
         ready = proc.wait_for_line("jara-arm: ready")
@@ -91,31 +97,31 @@ def test_two_arms_with_their_own_robots() -> None:
         assert a1.id == ReturnCode.OK and a2.id == ReturnCode.OK
         assert a1["mInfo"].isGripper is False
         assert a2["mInfo"].isGripper is True
-        assert {(s, a) for s, a, _ in started_pids(proc)} == {("servo", "a1"), ("servo", "a2")}
+        assert {(s, a) for s, a, _ in started_pids(proc)} == {(s, a) for s in NAMES for a in ("a1", "a2")}
 
 
-@pytest.mark.timeout(40)
+@pytest.mark.timeout(60)
 def test_killed_service_is_restarted() -> None:
     with launcher() as (proc, port):
         proc.wait_for_line("arm0/servo: servo up", timeout=10)
-        [(_, _, pid)] = started_pids(proc)
+        pid = pid_of(proc, "servo")
         mark = len(proc.lines)
         os.kill(pid, signal.SIGKILL)
         line = proc.wait_for_line("died with SIGKILL", timeout=5, start=mark)
         assert "servo (arm0) died with SIGKILL; restarting in 0.5 s" in line
-        wait_until(lambda: len(started_pids(proc)) == 2, timeout=5, what="the restart")
-        new_pid = started_pids(proc)[1][2]
+        wait_until(lambda: pid_of(proc, "servo") != pid, timeout=5, what="the restart")
+        new_pid = pid_of(proc, "servo")
         assert new_pid != pid and proc_alive(new_pid)
         proc.wait_for_line("arm0/servo: servo up", timeout=15, start=mark)
         with client_session(port) as session:
             assert Client(session).servo("getState").id == ReturnCode.OK
 
 
-@pytest.mark.timeout(40)
+@pytest.mark.timeout(90)
 def test_sigint_stops_every_child() -> None:
     with launcher("--arm", "a1", "--arm", "a2") as (proc, port):
         pids = [pid for _, _, pid in started_pids(proc)]
-        assert len(pids) == 2 and all(proc_alive(p) for p in pids)
+        assert len(pids) == 2 * len(NAMES) and all(proc_alive(p) for p in pids)
         os.kill(proc.popen.pid, signal.SIGINT)
         assert proc.popen.wait(10) == 0, proc.output
         assert not [p for p in pids if proc_alive(p)], proc.output
@@ -135,6 +141,11 @@ def test_sigint_stops_every_child() -> None:
     (["service", "nope"], "invalid choice: 'nope'"),
     (["service", "servo", "--robot", "nope"], "invalid choice: 'nope'"),
     (["frobnicate"], "invalid choice"),
+    (["up", "--obstacle", "1,2,3"], "expected x,y,z,hx,hy,hz"),
+    (["up", "--obstacle", "0,0,0,0.1,-0.1,0.1"], "half extents must be positive"),
+    (["logs", "--level", "loud"], "invalid choice: 'LOUD'"),
+    (["logs", "--service", "nope"], "invalid choice: 'nope'"),
+    (["alarms", "--arm", "bad/id"], "arm id 'bad/id' must be one chunk"),
 ])
 def test_bad_cli_input_exits_2(argv: list[str], message: str,
                                capsys: pytest.CaptureFixture[str]) -> None:
@@ -180,13 +191,15 @@ def test_children_connect_to_a_loopback_address() -> None:
     assert local_endpoint("tcp/10.0.0.5:7447") == "tcp/10.0.0.5:7447"
 
 
-@pytest.mark.timeout(30)
+@pytest.mark.timeout(60)
 def test_children_exit_when_the_launcher_is_killed() -> None:
     with launcher() as (proc, port):
-        [(_, _, pid)] = started_pids(proc)
+        pids = [pid for _, _, pid in started_pids(proc)]
+        assert len(pids) == len(NAMES)
         os.kill(proc.popen.pid, signal.SIGKILL)  # no chance to stop them: --exit-with-parent does
         proc.popen.wait(5)
-        wait_until(lambda: not proc_alive(pid), timeout=10, what="the orphaned servo to exit")
+        wait_until(lambda: not any(proc_alive(p) for p in pids), timeout=15,
+                   what="the orphaned services to exit")
 
 
 @pytest.mark.timeout(40)
@@ -227,13 +240,14 @@ def test_readiness_warns_about_missing_services_then_says_ready_once(
     settings = up.UpSettings((up.ArmSpec("a1", "iiwa"), up.ArmSpec("a2", "panda")),
                              RouterSettings(("tcp/127.0.0.1:7447",)))
     readiness = up.Readiness(settings, presence)  # type: ignore[arg-type]
-    presence.alive.add(("a1", "servo"))
+    presence.alive.update(("a1", name) for name in NAMES)
     with caplog.at_level(logging.WARNING, "jara_arm.launcher"):
         readiness.poll()
     assert "still waiting for servo (a2)" in caplog.text and "servo (a1)" not in caplog.text
     assert "ready" not in capsys.readouterr().out
-    presence.alive.add(("a2", "servo"))
+    presence.alive.update(("a2", name) for name in NAMES)
     readiness.poll()
     readiness.poll()
+    names = ", ".join(NAMES)
     assert capsys.readouterr().out.splitlines() == [
-        "jara-arm: ready: a1 (iiwa): servo; a2 (panda): servo; listening on tcp/127.0.0.1:7447"]
+        f"jara-arm: ready: a1 (iiwa): {names}; a2 (panda): {names}; listening on tcp/127.0.0.1:7447"]

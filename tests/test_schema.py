@@ -8,7 +8,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from jara_arm.schema import codec, generate, keys, messages
+from jara_arm.schema import alarms, codec, generate, keys, messages
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import AlarmType, ReturnCode
@@ -68,7 +68,7 @@ def test_operation_table_is_the_idl():
     assert [p.name for p in MIDDLE["getSoftLimitCartesian"].outputs] == ["xLimit", "yLimit", "zLimit"]
 
 
-@pytest.mark.parametrize("t", w.NAMED_TYPES + messages.MESSAGES, ids=lambda t: t.name)
+@pytest.mark.parametrize("t", w.NAMED_TYPES + messages.MESSAGES + alarms.MESSAGES, ids=lambda t: t.name)
 @pytest.mark.parametrize("enc", list(Encoding), ids=lambda e: e.name)
 def test_type_round_trip(t, enc):
     value = sample(t)
@@ -221,6 +221,14 @@ def test_keys():
     assert k.alive(keys.Service.SERVO) == "JARA_ARM/arm-1_B/alive/servo"
     assert keys.parse_alive(k.alive(keys.Service.PLANNER)) == ("arm-1_B", "planner")
     assert keys.parse_log(k.log(keys.Service.COMMAND)) == ("arm-1_B", "command")
+    assert k.monitor_common("clearAlarms") == "JARA_ARM/arm-1_B/Monitor/Common/clearAlarms"
+    assert k.monitor_alarms == "JARA_ARM/arm-1_B/Monitor/alarms"
+    assert k.monitor_report == "JARA_ARM/arm-1_B/Monitor/report"
+    assert k.command_settings == "JARA_ARM/arm-1_B/Command/settings"
+    assert keys.any_arm_monitor_common("getActiveAlarm") == "JARA_ARM/*/Monitor/Common/getActiveAlarm"
+    assert keys.any_arm_alarm() == "JARA_ARM/*/alarm" and keys.arm_of(k.alarm) == "arm-1_B"
+    with pytest.raises(UnknownOperationError):
+        k.monitor_common("getActivAlarm")
     for bad in ("", "a/b", "a*", "arm 0", "x$"):
         with pytest.raises(keys.ArmIdError):
             keys.ArmKeys(bad)
@@ -240,3 +248,14 @@ def test_generated_schema_is_in_sync():
     assert doc["x-state-bits"]["PAUSED"] == 0x10
     req = doc["x-operations"]["Middle"]["moveCircularCartesianAbs"]["request"]
     assert req["required"] == ["carPointR", "carPointT"] and req["additionalProperties"] is False
+
+
+def test_alarm_table_covers_every_code_with_its_decided_type():
+    """DECISIONS.md "Alarms": e-stop, overspeed and a lost/hung service are FAULTs; the rest WARNINGs."""
+    from jara_arm.schema.codes import AlarmCode
+    assert {a.code for a in alarms.ALARM_TABLE} == set(AlarmCode)
+    faults = {c for c, t in alarms.ALARM_TYPE.items() if t is AlarmType.FAULT}
+    assert faults == {0x01, 0x03, 0x400, 0x401, 0x402, 0x410, 0x411, 0x412}
+    assert all(c >= 0x400 for c in AlarmCode if c > 0x05)  # model-specific codes where the spec says
+    assert set(alarms.MONITOR_OPERATIONS) == {"getActiveAlarm", "clearAlarms"}
+    assert alarms.format_code(1) == "0x01" and alarms.format_code(0x410) == "0x410"

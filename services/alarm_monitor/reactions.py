@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 
 import zenoh
 
@@ -56,13 +57,16 @@ class _Worker:
             key, payload, what = job
             try:
                 answered = False
+                start = time.monotonic()
                 for reply in self._session.get(key, payload=payload, timeout=REACTION_TIMEOUT):
                     if reply.ok is not None:
                         body = codec.loads(reply.ok.payload.to_bytes())
                         answered = True
                         log.info("%s: %s answered %s", what, self._name,
                                  body.get("comment") if isinstance(body, dict) else body)
-                if not answered:
+                if not answered and time.monotonic() - start < 0.9 * REACTION_TIMEOUT:
+                    log.warning("%s: no %s answers (gone?)", what, self._name)
+                elif not answered:
                     log.warning("%s: the %s did not answer within %.1f s", what, self._name,
                                 REACTION_TIMEOUT)
             except Exception as exc:  # a reaction that fails must not stop the next ones

@@ -34,8 +34,19 @@ which parts of the commanded pose count:
     (:func:`reachable`), then solved exactly (full mask). The position is
     never changed. The duration counts the whole commanded rotation.
 
-* ``elbow`` -- the 7-axis arm angle is commanded (``CarPosWithElbow.elbow``);
-  ignored for 1-6 axes.
+* ``elbow`` -- the 7-axis arm angle (DECISIONS.md "Frames") is commanded
+  (``CarPosWithElbow.elbow``); ignored for 1-6 axes. Decisions:
+
+  - Abs: the target's arm angle is ``elbow``; Rel: ``elbow`` is an increment,
+    the target's arm angle is the start's (measured) plus ``elbow`` -- so a
+    Rel command with ``elbow = 0`` keeps the arm angle.
+  - LIN and CIRC move the arm angle linearly in the path parameter (the
+    fraction of the path length), from the start's to the target's, the
+    shorter way round (the difference wrapped into (-pi, pi]); every sample
+    is solved with that arm angle, so it is reached at the target within the
+    IK tolerance. PTP-Cartesian solves the target with it; the joint-space
+    path between has no arm-angle constraint.
+  - CIRC: the via point's ``elbow`` is ignored (its orientation too).
 * ``planar`` (2-axis gantry CIRC): J1 = X, J2 = Y; the points are in the arm
   frame (no base offset) and their Z is ignored (the path stays at the start
   height).

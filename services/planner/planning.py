@@ -16,8 +16,9 @@ Motions, all timed by one profile along one path (``profile.py``):
   A Cartesian target is solved by IK nearest to the start joints.
 * LIN / CIRC: a Cartesian line or arc of the control point, speed
   ``spdRatioCartesian`` x ``maxSpeedCartesian`` (the slower of translation and
-  rotation sets it), ``accelTimeCartesian``; IK at every servo period,
-  warm-started from the previous sample. If the joint speeds that this implies
+  rotation sets it), ``accelTimeCartesian``; joints from IK at knots of the
+  path and a spline in between, every servo sample checked on the path by
+  forward kinematics (``sampling.py``). If the joint speeds that this implies
   exceed ``maxSpeedJoint``, the whole profile is slowed down (same accel time)
   until they do not; refused only when even the lowest speed ratio (1 %) is
   too fast (a singularity or a posture change on the path).
@@ -63,13 +64,19 @@ from .profile import (
     move_profile,
     plan_joint_ptp,
 )
+from .sampling import BatchFk, PathJoints, Tolerances, Unreachable
 from .trajectory import Joints, LineMap, PlannedMotion, TableMap
 
-#: IK tolerance along LIN / CIRC paths and for PTP-Cartesian targets [m] and [rad]:
-#: tight enough that every planned point lies within 1e-6 m of the ideal path.
+#: IK tolerance at LIN / CIRC knots and for PTP-Cartesian targets [m] and [rad].
 IK_TOLERANCE = 1e-7
-#: Newton iterations per path sample: a warm start needs 1-3; more means the path left the workspace.
+#: Largest error of any LIN / CIRC sample [m] and [rad] (checked by FK at every servo sample):
+#: every planned point lies within 1e-6 m of the ideal path, with margin.
+SAMPLE_TOLERANCE = 2e-7
+#: Newton iterations per knot: a warm start needs 1-3; more means the path left the workspace.
 IK_SAMPLE_ITERATIONS = 60
+#: Initial knots of a LIN / CIRC: at most this much translation [m] and rotation [rad] apart.
+KNOT_TRANSLATION = 0.02
+KNOT_ROTATION = 0.1
 #: Lowest speed ratio a LIN / CIRC may be slowed down to for the joint speed limits [-].
 LOWEST_SPEED_RATIO = 0.01
 #: Slowing down for joint speed aims this far below the limit [-].
@@ -117,6 +124,9 @@ class MotionPlanner:
         self.n = model.axis_num
         self.dt = model.cmd_cycle
         self._rated = np.array(model.rated_speed)
+        self._fk = BatchFk(self.kin)
+        self._tol = Tolerances(IK_TOLERANCE, IK_TOLERANCE, SAMPLE_TOLERANCE, SAMPLE_TOLERANCE,
+                               max_iter=IK_SAMPLE_ITERATIONS)
 
     # ------------------------------------------------------------------ entry
 
@@ -234,8 +244,7 @@ class MotionPlanner:
         """Cartesian soft-limit check of a joint-space path, at every sample."""
         if np.all(q[0, :self.n] == q[-1, :self.n]):
             return  # the arm does not move (gripper only, or already there)
-        kin, tool = self.kin, frames.tool
-        pts = np.array([kin.control_point(qa, tool)[:3, 3] for qa in q[:, :self.n]])
+        pts = self._fk.run(q[:, :self.n], frames.tool)[0]
         pts = pts @ frames.base_inv[:3, :3].T + frames.base_inv[:3, 3]
         self._check_box(s, pts, what)
 
@@ -344,7 +353,7 @@ class MotionPlanner:
     def _cartesian(self, req: MotionRequest, start: Joints, path: CartesianLine | CartesianArc,
                    rule: CartesianRule, frames: _Frames,
                    elbows: tuple[float | None, float | None]) -> PlannedMotion:
-        """LIN / CIRC: profile, box check, IK at every sample, joint speed check (slowing down)."""
+        """LIN / CIRC: profile, box check, joints at every sample, joint speed check (slowing down)."""
         s = req.settings
         if s.spdRatioCartesian == 0:
             raise PlanRefused(ReturnCode.STATUS_ERR,
@@ -359,6 +368,7 @@ class MotionPlanner:
         vmax = self._vmax(s)[:self.n]
         lo, hi = self._soft_limits(s)
         checked_box = False
+        joints: PathJoints | None = None  # the joint path q(s): solved once, reused when slowing down
         for _ in range(SLOWDOWN_ROUNDS):
             profile = move_profile(path.length, ProfileLimits.from_accel_time(speed, s.accelTimeCartesian))
             samples = profile.sample(self.dt)
@@ -369,7 +379,17 @@ class MotionPlanner:
                     pts = pts @ frames.base_inv[:3, :3].T + frames.base_inv[:3, 3]
                 self._check_box(s, pts, req.op)
                 checked_box = True
-            q = self._solve_path(req.op, start, frames, poses, samples.s / path.length, rule, elbows, lo, hi)
+            try:
+                if joints is None:
+                    joints = self._path_joints(path, start, frames, rule, elbows, lo, hi)
+                q = np.repeat(start[None, :], len(samples.s), axis=0)  # gripper column kept as it is
+                q[:, :self.n] = joints.joints(samples.s, self._ik_targets(poses, frames, rule))
+            except Unreachable as exc:
+                p = exc.position @ frames.base_inv[:3, :3].T + frames.base_inv[:3, 3]
+                raise PlanRefused(ReturnCode.VALUE_ERR,
+                                  f"{req.op}: unreachable at {100.0 * exc.s / path.length:.0f} % of the path "
+                                  f"(control point at [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}] m): no IK solution "
+                                  f"within the joint soft limits") from None
             over = np.abs(np.diff(q[:, :self.n], axis=0)) / self.dt / vmax  # [-] joint speed / max
             worst = float(over.max()) if over.size else 0.0
             if worst <= 1.0:
@@ -386,28 +406,25 @@ class MotionPlanner:
         raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: could not keep the joint speeds within "
                           f"maxSpeedJoint along the path")
 
-    def _solve_path(self, op: str, start: Joints, frames: _Frames, poses: NDArray[np.float64],
-                    u: NDArray[np.float64], rule: CartesianRule,
-                    elbows: tuple[float | None, float | None], lo: Joints, hi: Joints) -> Joints:
-        """Joints (N, dof) at robot-frame poses (N, 4, 4), warm-started sample to sample."""
-        n, kin, tool, mask = self.n, self.kin, frames.tool, rule.mask
-        e0, e1 = elbows
-        targets = families.reachable(rule, kin, np.einsum("ij,njk->nik", frames.base, poses), tool)
-        q = np.repeat(start[None, :], len(poses), axis=0)  # gripper column kept as it is
-        prev = start[:n]
-        for k in range(1, len(poses)):
-            elbow = None if e0 is None else e0 + u[k] * (e1 - e0)
-            res = kin.ik(targets[k], prev, tool=tool, elbow=elbow, mask=mask, tol_pos=IK_TOLERANCE,
-                         tol_rot=IK_TOLERANCE, max_iter=IK_SAMPLE_ITERATIONS, lower=lo, upper=hi)
-            if not res.success:
-                p = poses[k, :3, 3]
-                raise PlanRefused(ReturnCode.VALUE_ERR,
-                                  f"{op}: unreachable at {100.0 * u[k]:.0f} % of the path (control point "
-                                  f"at [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}] m): no IK solution within the "
-                                  f"joint soft limits")
-            prev = res.q
-            q[k, :n] = prev
-        return q
+    def _ik_targets(self, poses: NDArray[np.float64], frames: _Frames,
+                    rule: CartesianRule) -> NDArray[np.float64]:
+        """Robot-frame path poses (N, 4, 4) as IK must meet them: arm frame, family rule applied."""
+        if not np.array_equal(frames.base, np.eye(4)):
+            poses = np.einsum("ij,njk->nik", frames.base, poses)
+        return families.reachable(rule, self.kin, poses, frames.tool)
+
+    def _path_joints(self, path: CartesianLine | CartesianArc, start: Joints, frames: _Frames,
+                     rule: CartesianRule, elbows: tuple[float | None, float | None], lo: Joints,
+                     hi: Joints) -> PathJoints:
+        """The joint path along ``path`` (robot frame) from ``start``; raises Unreachable."""
+
+        def targets(s: NDArray[np.float64]) -> NDArray[np.float64]:
+            return self._ik_targets(path.sample(s), frames, rule)
+
+        intervals = math.ceil(max(path.translation_length / KNOT_TRANSLATION,
+                                  path.rotation_angle / KNOT_ROTATION, 1.0))
+        return PathJoints(self.kin, self._fk, targets, path.length, start[:self.n], frames.tool, rule.mask,
+                          elbows, lo, hi, self._tol, intervals)
 
     def _gripper(self, req: MotionRequest, start: Joints, ratio: int) -> PlannedMotion:
         lim = self.model.gripper_limits

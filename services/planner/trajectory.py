@@ -5,10 +5,12 @@ The streamer only ever needs joints at values of the path parameter ``s``
 every motion carries a :class:`JointMap` ``s -> q``:
 
 * :class:`LineMap` -- a joint-space line (PTP, goHome, gripper): exact.
-* :class:`TableMap` -- a Cartesian path (LIN, CIRC) solved by IK at the
-  nominal profile's samples; between them, joints are interpolated linearly in
-  ``s``. Samples are 1 servo period apart, so the interpolated point leaves the
-  Cartesian path by far less than a micrometre (chord of a sub-millimetre step).
+* :class:`TableMap` -- a Cartesian path (LIN, CIRC): the joints at the
+  nominal profile's samples (``sampling.py``: IK at knots, a spline between,
+  every sample checked on the path by FK); between them, joints are
+  interpolated linearly in ``s``. Samples are 1 servo period apart, so the
+  interpolated point leaves the Cartesian path by far less than a micrometre
+  (chord of a sub-millimetre step).
 
 Joint vectors are the wire's: arm axes J1..Jn, then the gripper axis if fitted
 [rad or m].

@@ -64,6 +64,9 @@ LIMIT_TOLERANCE = 1e-3
 #: planner's S-curve at the min accel time (2 v / T), so that a planned motion that
 #: ends on a limit is never taken for one that would overrun it.
 LIMIT_STOP_ACCEL = 2.0
+#: After the stream ran dry, a command this close to the held target counts as starting
+#: from rest there (e.g. a client that starts from the measured joints) [rad or m].
+RESUME_TOLERANCE = 1e-4
 #: Slack of the "stops before the soft limit" check, for rounding only [rad or m].
 _LIMIT_EPS = 1e-9
 #: Behind schedule by more than this, the loop stops catching up and restarts its clock [s].
@@ -361,7 +364,10 @@ class ServoLoop:
         step = cmd - self.q
         too_fast = np.abs(step) > self._vmax * self.dt * OVERSPEED_MARGIN
         if self._interrupted:
-            if np.any(too_fast):
+            # After a stop for a stream that ran dry, only a stream that starts again from
+            # rest where the arm stopped is followed: joining a moving stream halfway would
+            # step the velocity from zero to the stream's in one cycle.
+            if np.any(np.abs(step) > RESUME_TOLERANCE):
                 self.dropped += 1  # stale commands of the interrupted stream
                 return
             self._interrupted = False

@@ -1,0 +1,72 @@
+"""Alarm detection latency: each fault provoked for real, repeatedly, with the full system up.
+
+    python bench/alarm_latency.py [--repeat 5] [--only estop,jump,...]
+
+Runs the scenarios of ``tests/test_alarms.py`` (the same launcher, the same
+checks) ``--repeat`` times each and prints, per scenario, the time from the
+cause to the alarm event received by this client [ms]: the e-stop put, the
+cycle the servo takes a command that jumps or could not stop before a joint
+soft limit, the servo's timestamp of the first feedback beyond the Cartesian
+box or of the first effort above the rating, the SIGKILL or SIGSTOP of a
+service. Hung-service figures include their staleness thresholds
+(``services/alarm_monitor/detectors.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # the tests' helpers
+from tests import test_alarms as scenarios  # noqa: E402
+from tests.support import client_session, wait_alive  # noqa: E402
+
+SCENARIOS = {
+    "estop": scenarios.test_estop_during_a_lin,
+    "overload": scenarios.test_driven_into_an_obstacle,
+    "jump": scenarios.test_position_stream_that_jumps,
+    "joint-limit": scenarios.test_position_stream_that_leaves_the_joint_soft_limits,
+    "cartesian-limit": scenarios.test_control_point_crosses_the_cartesian_soft_limits,
+    "servo-kill": scenarios.test_servo_killed_in_the_middle_of_a_motion,
+    "planner-kill": scenarios.test_planner_killed_in_the_middle_of_a_motion,
+    "servo-stop": scenarios.test_servo_hung_by_sigstop,
+    "planner-stop": scenarios.test_planner_hung_by_sigstop,
+}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=5, help="runs of each scenario (default: 5)")
+    ap.add_argument("--only", default=",".join(SCENARIOS),
+                    help=f"comma-separated scenarios (default: all of {', '.join(SCENARIOS)})")
+    args = ap.parse_args()
+    chosen = [name.strip() for name in args.only.split(",") if name.strip()]
+    unknown = set(chosen) - set(SCENARIOS)
+    if unknown:
+        ap.error(f"unknown scenarios {sorted(unknown)}; choose from {', '.join(SCENARIOS)}")
+    failures = 0
+    with scenarios.launched() as (proc, port), client_session(port) as session:
+        wait_alive(session, "arm0", scenarios.ALL_SERVICES, timeout=30)
+        arm = scenarios.System(proc, port, session)
+        for name in chosen:
+            for _ in range(args.repeat):
+                arm.reset()
+                try:
+                    SCENARIOS[name](arm)
+                except AssertionError as exc:  # report and go on: the figures of the others still count
+                    failures += 1
+                    print(f"{name}: FAILED: {str(exc).splitlines()[0]}\n{arm.log_tail(40)}", file=sys.stderr)
+    print(f"\nalarm detection latency, cause -> alarm event received [ms] ({args.repeat} runs each):")
+    print(f"  {'scenario':<40} {'n':>3} {'min':>7} {'median':>7} {'p95':>7} {'max':>7}")
+    for label, values in scenarios.LATENCIES.items():
+        v = np.array(values)
+        print(f"  {label:<40} {len(v):>3} {v.min():7.1f} {np.median(v):7.1f} "
+              f"{np.percentile(v, 95):7.1f} {v.max():7.1f}")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
