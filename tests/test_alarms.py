@@ -573,6 +573,10 @@ def test_monitor_list_and_alarm_events_agree(arm: System):
         assert (AlarmCode.EMERGENCY_STOP,) in codes and codes[-1] == (), codes
         assert all(b.tm.to_seconds() > a.tm.to_seconds() for a, b in zip(seen, seen[1:]))
         assert [e.event for _, e in arm.events[since:]] == ["raised", "cleared"]
+        # The monitor serves only the alarm operations of the Common table.
+        assert arm.client.raw(arm.keys.monitor_common(OP.getState), b"")["id"] == ReturnCode.NOT_IMPLEMENTED
+        assert arm.client.raw(arm.keys.monitor_common(OP.getActiveAlarm), b"{}", json=True) == {
+            "id": 0, "comment": "OK", "alarms": []}
     finally:
         lists.undeclare()
     arm.ok(arm.common(OP.servoON))

@@ -512,7 +512,7 @@ class ServoLoop:
         if self.alarmed:
             codes = sorted({*self.latches, *(a.code for a in self.monitor_alarms)})
             return "alarms active: " + ", ".join(format_code(c) for c in codes) + "; clear them first"
-        if self._braking is not None:
+        if self._braking is not None and not self.servo_on:  # already on (after a WARNING): nothing to do
             return "the arm is still stopping"
         if not self.servo_on:
             self.q = self.fb_pos.copy()  # hold where the brakes held it
