@@ -26,7 +26,7 @@ from .monitor import Monitor
 log = logging.getLogger("jara_arm.alarm_monitor")
 
 #: SCHED_FIFO priority of the monitor's threads: below the servo loop (40), above the planner (30).
-DEFAULT_RT_PRIORITY = 35
+DEFAULT_RT_PRIORITY = 25  # below the planner streamer (30): feeding the servo FIFO comes first
 
 
 class MonitorCommon:

@@ -1,8 +1,8 @@
 """Real-time scheduling (SCHED_FIFO) for the threads that must run within milliseconds.
 
 Needs CAP_SYS_NICE (or an RLIMIT_RTPRIO); without it the threads stay normal
-ones and the service says so once. Priorities of this project: servo loop 40,
-alarm monitor 35, planner streamer 30 (its other threads 29).
+ones and the service says so once. Priorities of this project: servo loop 40 (its
+other threads 39), planner streamer 30 (its other threads 29), alarm monitor 25.
 """
 
 from __future__ import annotations

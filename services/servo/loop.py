@@ -126,6 +126,7 @@ class _Stats:
     overruns: int = 0
     underruns: int = 0
     late: int = 0
+    waits: int = 0  # times the loop, behind schedule, waited for commands instead of running dry
 
 
 class ServoLoop:
@@ -234,7 +235,14 @@ class ServoLoop:
                     log.warning("servo loop %.0f ms behind schedule; restarting its clock", lateness * 1e3)
                     next_ns = now
                     wall_offset = time.time_ns() - now
-                self._cycle(cycles, next_ns + wall_offset)
+                if not self._cycle(cycles, next_ns + wall_offset, behind=lateness > self.dt):
+                    # The whole machine stalled (the planner too): wait for its commands
+                    # instead of catching up into an empty FIFO. The simulated arm stood
+                    # still through the stall; its clock restarts now.
+                    self._stats.waits += 1
+                    next_ns = now + period_ns
+                    wall_offset = time.time_ns() - now
+                    continue
                 done = time.monotonic_ns()
                 st = self._stats
                 st.lateness.append(lateness)
@@ -251,7 +259,9 @@ class ServoLoop:
             self._failed = exc
             log.exception("servo loop failed")
 
-    def _cycle(self, k: int, tm_ns: int) -> None:
+    def _cycle(self, k: int, tm_ns: int, behind: bool = False) -> bool:
+        """One servo cycle; False (nothing done) when ``behind`` schedule mid-motion with an
+        empty FIFO: the commands for these cycles were not sent yet, not lost."""
         if self._estop_sub.try_recv() is not None:
             while self._estop_sub.try_recv() is not None:
                 pass
@@ -268,6 +278,9 @@ class ServoLoop:
             except Exception as exc:
                 fut.set_exception(exc)
         self._take_commands()
+        if (behind and not self._fifo and self._cmd_moving and self._braking is None
+                and self.servo_on and not self.alarmed):
+            return False
         self._advance()
         self.world.command(self.q, self.qd)
         self.world.step()
@@ -280,6 +293,7 @@ class ServoLoop:
             self._report_latches()
         if k % STATUS_EVERY == 0:
             self._publish_status(Time(tm_ns // 1_000_000_000, tm_ns % 1_000_000_000))
+        return True
 
     def _take_commands(self) -> None:
         """Move what arrived into the FIFO (or drop it while commands are not accepted)."""
@@ -593,6 +607,9 @@ class ServoLoop:
             float(np.percentile(lat, 99)), float(lat.max()), st.late, st.overruns,
             len(self._fifo), st.underruns, tuple(int(c) for c in hist))
         self._health_pub.put(codec.encode_message(messages.LOOP_HEALTH, msg))
+        if st.waits:
+            log.info("servo loop: %d stall(s) absorbed (behind schedule mid-motion, FIFO empty: "
+                     "waited for the commands instead of running dry)", st.waits)
         if st.late + st.overruns > 0.01 * max(1, len(st.lateness)):  # the 1 % budget
             log.warning("servo loop: %d of %d cycles late by more than one period, %d overruns, "
                         "max lateness %.2f ms", st.late, len(st.lateness), st.overruns, lat.max() * 1e3)
