@@ -20,6 +20,8 @@ import time
 
 from jara_arm.schema.keys import Service, any_arm_log
 
+from jara_arm.services.runtime.realtime import realtime_process
+
 from .router import Presence, RouterSettings, local_endpoint, open_router, say
 from .services import SERVICES, ServiceSpec
 from .supervisor import Child, StopSignals, Supervisor
@@ -44,6 +46,10 @@ class UpSettings:
     log_level: str = "INFO"
     obstacles: tuple[str, ...] = ()  # ``x,y,z,hx,hy,hz`` [m], passed to every servo as --obstacle
     demo: bool = False  # once ready, run ``jara-arm demo`` on every arm (its output on stdout)
+
+
+#: SCHED_FIFO priority of the router's threads: between the servo (40) and the planner (30).
+ROUTER_RT_PRIORITY = 35
 
 
 def demo_argv(arm: ArmSpec, settings: UpSettings) -> list[str]:
@@ -108,6 +114,9 @@ class Readiness:
 def run_up(settings: UpSettings, signals: StopSignals) -> int:
     """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
     with open_router(settings.router) as session:
+        # The router carries the 1 kHz position stream from planner to servo: starved by
+        # normal-priority work, it would let the servo FIFO run dry.
+        realtime_process(ROUTER_RT_PRIORITY, "router", skip_caller=True)
         logs = LogPrinter(session, any_arm_log())
         presence = Presence(session)
         readiness = Readiness(settings, presence)

@@ -2,13 +2,15 @@
 
 Needs CAP_SYS_NICE (or an RLIMIT_RTPRIO); without it the threads stay normal
 ones and the service says so once. Priorities of this project: servo loop 40 (its
-other threads 39), planner streamer 30 (its other threads 29), alarm monitor 25.
+other threads 39), the launcher's router 35, planner streamer 30 (its other
+threads 29), alarm monitor 25.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import threading
 
 log = logging.getLogger(__name__)
 
@@ -21,7 +23,7 @@ def _set_fifo(tid: int, priority: int) -> bool:
         return False
 
 
-def realtime_process(priority: int, what: str) -> int:
+def realtime_process(priority: int, what: str, *, skip_caller: bool = False) -> int:
     """SCHED_FIFO at ``priority`` for every thread of this process under the normal scheduler.
 
     Zenoh's threads (that receive and send) included: a safety path is only as
@@ -34,6 +36,8 @@ def realtime_process(priority: int, what: str) -> int:
         tids = [int(t) for t in os.listdir("/proc/self/task")]
     except OSError:  # not Linux
         return 0
+    if skip_caller:  # e.g. a thread that starts child processes: they would inherit SCHED_FIFO
+        tids = [t for t in tids if t != threading.get_native_id()]
     count = 0
     for tid in tids:
         try:
