@@ -277,9 +277,12 @@ def check_alarm(arm: System, code: AlarmCode, kind: AlarmType, servo_on: bool) -
     for reply in (arm.common(OP.getActiveAlarm), arm.servo(OP.getActiveAlarm)):
         alarms = {a.code: a for a in arm.ok(reply)["alarms"]}
         assert code in alarms and alarms[code].type is kind and alarms[code].description, reply
-    for state in (arm.state(), arm.servo(OP.getState)["state"]):
-        assert state & StateBit.ALARM, state
-        assert bool(state & StateBit.SERVO_ON) == servo_on, state
+    # The reaction (servo off on a FAULT) follows the event; give it a moment, not forever.
+    def reacted() -> bool:
+        states = (arm.state(), arm.servo(OP.getState)["state"])
+        return all(st & StateBit.ALARM and bool(st & StateBit.SERVO_ON) == servo_on for st in states)
+
+    wait_until(reacted, 1.0, what=f"bit 0x04 set and servo {'on' if servo_on else 'off'} on both levels")
 
 
 def check_no_jump(arm: System, since: float = 0.0, allowed: np.ndarray = ACC_ALLOWED) -> np.ndarray:

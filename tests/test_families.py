@@ -206,9 +206,17 @@ def test_ptp_joint_home_and_soft_limits(arm: Arm):
     lo = np.array([lim.lower for lim in arm.model.hard_limits])
     hi = np.array([lim.upper for lim in arm.model.hard_limits])
     delta = np.where(hi - q0 > q0 - lo, 1.0, -1.0) * np.minimum(0.1, 0.3 * (hi - lo))
+    t = time.monotonic()
     arm.run(OP.movePTPJointRel, {"jointPoints": tuple(delta)})
+    fast = time.monotonic() - t
     assert np.abs(arm.joints()[:n] - (q0 + delta)).max() < 1e-4
+    # The same move back at a tenth of the speed takes far longer (speeds work the same everywhere).
+    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 10}))
+    t = time.monotonic()
     arm.run(OP.movePTPJointAbs, {"jointPoints": tuple(q0)})
+    slow = time.monotonic() - t
+    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 100}))
+    assert slow > 1.5 * fast, (slow, fast)
     assert np.abs(arm.joints()[:n] - q0).max() < 1e-4
     # A soft limit that excludes the target refuses it and nothing moves.
     soft = [LimitValue(h, lo_) for lo_, h in zip(lo, hi)]

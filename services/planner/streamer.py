@@ -51,7 +51,7 @@ from .trajectory import Joints, PlannedMotion
 log = logging.getLogger(__name__)
 
 #: Commands kept ahead of the servo [s]: the pause/stop latency, and the margin against hiccups.
-DEFAULT_LEAD = 0.012
+DEFAULT_LEAD = 0.016  # 16 ms: pause/stop still take effect within 20 ms of the reply
 #: SCHED_FIFO priority of the engine thread: below the servo loop's 40 (0: normal scheduling).
 DEFAULT_RT_PRIORITY = 30
 #: Without a servo status for this long while streaming, the servo is taken as gone [s].
