@@ -29,7 +29,6 @@ import collections
 import dataclasses
 import enum
 import logging
-import os
 import threading
 import time
 from collections.abc import Callable
@@ -42,6 +41,8 @@ from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.planner import ControlAction, PlannerProgress
 from jara_arm.schema.types import Time, TimedJointPos
+
+from jara_arm.services.runtime.realtime import realtime_thread
 
 from .planning import PlanRefused
 from .profile import PathProfile
@@ -96,17 +97,6 @@ class _Segment:
         """From rest where this segment ended to the end of the path."""
         profile = self.profile.resume()
         return _Segment(self.motion, profile, self.motion.joints_along(profile), _Kind.RUN)
-
-
-def _realtime_thread(priority: int) -> None:
-    """SCHED_FIFO at ``priority`` for the calling thread (0: leave it alone)."""
-    if priority <= 0:
-        return
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        log.info("streamer runs with SCHED_FIFO priority %d", priority)
-    except (OSError, AttributeError):
-        log.warning("streamer without real-time priority (no permission?): expect more jitter")
 
 
 class Streamer:
@@ -318,7 +308,7 @@ class Streamer:
     # ------------------------------------------------------------------ engine thread
 
     def run(self) -> None:
-        _realtime_thread(self._rt_priority)
+        realtime_thread(self._rt_priority, "streamer")
         last_progress: PlannerProgress | None = None
         last_progress_at = 0.0
         last_now = last_late_log = time.time()

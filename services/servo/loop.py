@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
-import ctypes
 import dataclasses
 import logging
-import os
 import sys
 import threading
 import time
@@ -33,8 +31,7 @@ from typing import Any, TypeVar
 import numpy as np
 import zenoh
 
-from jara_arm.robots import RobotModel
-from jara_arm.robots import Obstacle
+from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmList, AlarmReport, format_code
@@ -43,6 +40,7 @@ from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.monitor_link import is_newer
+from jara_arm.services.runtime.realtime import realtime_thread
 
 from .braking import Braking, Glide
 from .world import World
@@ -73,7 +71,6 @@ _LIMIT_EPS = 1e-9
 RESYNC_AFTER = 0.1
 STATUS_EVERY = 10  # cycles between ServoStatus messages
 HEALTH_EVERY = 1.0  # [s] between LoopHealth messages
-_PR_SET_TIMERSLACK = 29
 #: SCHED_FIFO priority of the loop thread (Linux 1..99; 0 = normal scheduling).
 DEFAULT_RT_PRIORITY = 40
 #: Other threads of the servo process hand the GIL back to the loop this often [s].
@@ -86,26 +83,6 @@ REPORT_AGAIN = 0.5
 RELAX_TOLERANCE = 0.01
 #: ... bringing the target there in this time, so that the push fades rather than drops [s].
 RELAX_TIME = 0.2
-
-
-def _realtime_thread(priority: int) -> None:
-    """Make the calling thread a real-time one, as servo drives are.
-
-    1 us timer slack so that sleeps end close to their deadline, and SCHED_FIFO
-    at ``priority`` (0: leave the scheduler alone) so that other processes do
-    not delay the cycle. Both need privileges that a container may lack: then
-    the loop runs as a normal thread and says so.
-    """
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
-    except Exception:
-        pass
-    if priority > 0:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            log.info("servo loop runs with SCHED_FIFO priority %d", priority)
-        except (OSError, AttributeError) as exc:
-            log.warning("servo loop without real-time priority (%s): expect more jitter", exc)
 
 
 @dataclasses.dataclass
@@ -215,7 +192,7 @@ class ServoLoop:
 
     # -- the loop -----------------------------------------------------------------
     def _run(self) -> None:
-        _realtime_thread(self._rt_priority)
+        realtime_thread(self._rt_priority, "servo loop")
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
         period_ns = self.model.cmd_cycle_ms * 1_000_000
         next_ns = time.monotonic_ns()
