@@ -465,3 +465,31 @@ def test_elbow_ignored_below_seven_axes_and_used_on_seven(arm: Arm):
         assert np.abs(arm.joints() - qa).max() > 0.05
     else:
         assert np.abs(arm.joints() - qa).max() < 1e-4
+
+
+def test_cartesian_soft_limits_refuse_a_path_that_leaves_the_box(arm: Arm):
+    """The Cartesian box works the same on every family that moves in Cartesian space."""
+    lin, circ = ACCEPTS[arm.model.name]
+    if not (lin or circ):
+        pytest.skip(f"{arm.model.name}: no Cartesian motion (NG per the table)")
+    T0, T1, via, tgt = _targets(arm)
+    p = T0[:3, 3]
+    names = ("xLimit", "yLimit", "zLimit")
+    # A box around the start that the target of the move leaves (by 5 mm in x).
+    box = {n: LimitValue(p[i] + 0.2, p[i] - 0.2) for i, n in enumerate(names)}
+    goal = tgt if circ and not lin else T1
+    box["xLimit"] = LimitValue(goal[0, 3] - 0.005, p[0] - 0.2)
+    q0 = arm.joints()
+    arm.ok(arm.middle(OP.setSoftLimitCartesian, box))
+    try:
+        if lin:
+            reply = arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(T1[:3, 3] - p)})
+        else:
+            reply = arm.middle(OP.moveCircularCartesianRel,
+                               {"carPointR": rel(via[:3, 3] - p), "carPointT": rel(tgt[:3, 3] - p)})
+        assert reply.id == ReturnCode.VALUE_ERR, reply
+        time.sleep(0.1)
+        assert np.abs(arm.joints() - q0).max() < 1e-6  # nothing moved
+    finally:
+        wide = {n: LimitValue(10.0, -10.0) for n in names}
+        arm.ok(arm.middle(OP.setSoftLimitCartesian, wide))
