@@ -67,6 +67,9 @@ LIMIT_STOP_ACCEL = 2.0
 RESUME_TOLERANCE = 1e-4
 #: Slack of the "stops before the soft limit" check, for rounding only [rad or m].
 _LIMIT_EPS = 1e-9
+#: Cycles the simulated servo waits, mid-motion, for a late command before it stops the
+#: arm as for a dry FIFO; simulated time stands still meanwhile (nothing moves or jumps).
+UNDERRUN_GRACE = 10
 #: Behind schedule by more than this, the loop stops catching up and restarts its clock [s].
 RESYNC_AFTER = 0.1
 STATUS_EVERY = 10  # cycles between ServoStatus messages
@@ -140,6 +143,7 @@ class ServoLoop:
         self._braking: Braking | Glide | None = None  # a stop, or letting go of a push
         self._interrupted = False  # the stream ran dry mid-motion; wait for a consistent command
         self._cmd_moving = False  # the commanded velocity qd is not all zero
+        self._late_cycles = 0  # consecutive cycles waited for a command mid-motion
         self._calls: collections.deque[tuple[Callable[[], Any], concurrent.futures.Future]] = collections.deque()
         self.received = self.consumed = self.underruns = self.dropped = 0
 
@@ -196,9 +200,11 @@ class ServoLoop:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
         period_ns = self.model.cmd_cycle_ms * 1_000_000
         next_ns = time.monotonic_ns()
-        # A sample's tm is the wall-clock time its cycle stands for (its deadline), so
-        # consecutive samples are exactly one period apart even while the loop catches up.
         wall_offset = time.time_ns() - next_ns
+        # A sample's tm is the time its cycle stands for: one period after the previous
+        # sample while the arm moves (simulated time; the loop may catch up or wait), the
+        # cycle's wall-clock deadline again once it is at rest.
+        tm_ns = next_ns + wall_offset - period_ns
         window_start = time.monotonic()
         cycles = 0
         try:
@@ -212,11 +218,14 @@ class ServoLoop:
                     log.warning("servo loop %.0f ms behind schedule; restarting its clock", lateness * 1e3)
                     next_ns = now
                     wall_offset = time.time_ns() - now
-                if not self._cycle(cycles, next_ns + wall_offset, behind=lateness > self.dt):
-                    # The whole machine stalled (the planner too): wait for its commands
-                    # instead of catching up into an empty FIFO. The simulated arm stood
-                    # still through the stall; its clock restarts now.
+                at_rest = not self._cmd_moving and not self._fifo
+                tm_ns = max(tm_ns + period_ns, next_ns + wall_offset) if at_rest else tm_ns + period_ns
+                if not self._cycle(cycles, tm_ns, behind=lateness > self.dt):
+                    # No command yet mid-motion: the machine stalled (behind schedule) or the
+                    # planner's command is late (within the grace). Simulated time stands
+                    # still until it comes; nothing is stepped or published.
                     self._stats.waits += 1
+                    tm_ns -= period_ns
                     next_ns = now + period_ns
                     wall_offset = time.time_ns() - now
                     continue
@@ -237,8 +246,8 @@ class ServoLoop:
             log.exception("servo loop failed")
 
     def _cycle(self, k: int, tm_ns: int, behind: bool = False) -> bool:
-        """One servo cycle; False (nothing done) when ``behind`` schedule mid-motion with an
-        empty FIFO: the commands for these cycles were not sent yet, not lost."""
+        """One servo cycle; False (nothing done) mid-motion with an empty FIFO while ``behind``
+        schedule (the commands were not sent yet, not lost) or within ``UNDERRUN_GRACE``."""
         if self._estop_sub.try_recv() is not None:
             while self._estop_sub.try_recv() is not None:
                 pass
@@ -255,9 +264,13 @@ class ServoLoop:
             except Exception as exc:
                 fut.set_exception(exc)
         self._take_commands()
-        if (behind and not self._fifo and self._cmd_moving and self._braking is None
+        if (not self._fifo and self._cmd_moving and self._braking is None
                 and self.servo_on and not self.alarmed):
-            return False
+            if behind or self._late_cycles < UNDERRUN_GRACE:
+                self._late_cycles += 1
+                return False
+        else:
+            self._late_cycles = 0
         self._advance()
         self.world.command(self.q, self.qd)
         self.world.step()
@@ -585,8 +598,8 @@ class ServoLoop:
             len(self._fifo), st.underruns, tuple(int(c) for c in hist))
         self._health_pub.put(codec.encode_message(messages.LOOP_HEALTH, msg))
         if st.waits:
-            log.info("servo loop: %d stall(s) absorbed (behind schedule mid-motion, FIFO empty: "
-                     "waited for the commands instead of running dry)", st.waits)
+            log.info("servo loop: waited %d cycle(s) mid-motion for late commands (simulated "
+                     "time stood still) instead of running dry", st.waits)
         if st.late + st.overruns > 0.01 * max(1, len(st.lateness)):  # the 1 % budget
             log.warning("servo loop: %d of %d cycles late by more than one period, %d overruns, "
                         "max lateness %.2f ms", st.late, len(st.lateness), st.overruns, lat.max() * 1e3)
