@@ -14,7 +14,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from jara_arm.robots import Family, RobotModel, robot
+from jara_arm.robots import ROBOTS, Family, RobotModel
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.keys import Service
@@ -79,7 +79,7 @@ def run_demo(client: ArmClient, out: TextIO) -> int:
     info = client.common(OP.getManipInfo)["mInfo"]
     d.say(f"arm {client.keys.arm}: {info.manufactur} {info.type}, {info.axisNum} axes"
           f"{' + gripper' if info.isGripper else ''}, cycle {info.cmdCycle} ms")
-    model: RobotModel | None = next((r for r in _models() if r.type == info.type), None)
+    model: RobotModel | None = next((r for r in ROBOTS.values() if r.type == info.type), None)
     if client.state() & StateBit.ALARM:
         d.step("clearAlarms", lambda: client.common(OP.clearAlarms))
     d.step("servoON", lambda: client.common(OP.servoON))
@@ -116,8 +116,3 @@ def run_demo(client: ArmClient, out: TextIO) -> int:
     d.say("demo done" if not d.failed else f"demo: {len(d.failed)} step(s) failed: {', '.join(d.failed)}")
     return len(d.failed)
 
-
-def _models() -> list[RobotModel]:
-    from jara_arm.robots import ROBOTS
-
-    return [robot(name) for name in ROBOTS]

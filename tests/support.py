@@ -19,10 +19,10 @@ from typing import Any
 
 import zenoh
 
+from jara_arm.launcher.client import ArmClient
 from jara_arm.schema import codec
-from jara_arm.schema.codec import Encoding, Reply
+from jara_arm.schema.codec import Encoding
 from jara_arm.schema.keys import ArmKeys, Service
-from jara_arm.schema.operations import Interface, operation
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 
@@ -125,41 +125,16 @@ def wait_alive(session: zenoh.Session, arm: str, services: Sequence[Service],
     raise AssertionError(f"services not alive within {timeout} s: {sorted(missing)}")
 
 
-class Client:
-    """Calls operations by name through the schema; returns decoded replies."""
-
-    def __init__(self, session: zenoh.Session, arm: str = "arm0") -> None:
-        self.session = session
-        self.keys = ArmKeys(arm)
-
-    def _get(self, key: str, payload: bytes, encoding: zenoh.Encoding | None,
-             timeout: float) -> bytes:
-        replies = list(self.session.get(key, payload=payload, encoding=encoding, timeout=timeout))
-        oks = [r.ok for r in replies if r.ok is not None]
-        assert len(oks) == 1, f"expected exactly one reply on {key}, got {replies}"
-        return oks[0].payload.to_bytes()
-
-    def call(self, interface: Interface, name: str, args: Mapping[str, Any] | None = None,
-             *, servo: bool = False, timeout: float = 10.0) -> Reply:
-        op = operation(interface, name)
-        key = self.keys.servo_common(name) if servo else self.keys.interface(interface, name)
-        body = self._get(key, codec.encode_request(op, args), None, timeout)
-        return codec.decode_reply(op, body)
-
-    def servo(self, name: str, args: Mapping[str, Any] | None = None, **kw: Any) -> Reply:
-        return self.call(Interface.COMMON, name, args, servo=True, **kw)
-
-    def common(self, name: str, args: Mapping[str, Any] | None = None, **kw: Any) -> Reply:
-        return self.call(Interface.COMMON, name, args, **kw)
-
-    def middle(self, name: str, args: Mapping[str, Any] | None = None, **kw: Any) -> Reply:
-        return self.call(Interface.MIDDLE, name, args, **kw)
+class Client(ArmClient):
+    """The package's client plus raw queries (arbitrary payloads, for bad-input tests)."""
 
     def raw(self, key: str, payload: bytes, *, json: bool = False, timeout: float = 10.0) -> Any:
         """A query with an arbitrary payload; the reply map as decoded data."""
         enc = zenoh.Encoding.APPLICATION_JSON if json else None
-        body = self._get(key, payload, enc, timeout)
-        return codec.loads(body, Encoding.JSON if json else Encoding.MSGPACK)
+        oks = [r.ok for r in self.session.get(key, payload=payload, encoding=enc, timeout=timeout)
+               if r.ok is not None]
+        assert len(oks) == 1, f"expected exactly one reply on {key}, got {len(oks)}"
+        return codec.loads(oks[0].payload.to_bytes(), Encoding.JSON if json else Encoding.MSGPACK)
 
 
 def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: str = "condition"):
