@@ -8,7 +8,7 @@ cause to the alarm event received by this client [ms]: the e-stop put, the
 cycle the servo takes a command that jumps or could not stop before a joint
 soft limit, the servo's timestamp of the first feedback beyond the Cartesian
 box or of the first effort above the rating, the SIGKILL or SIGSTOP of a
-service. Hung-service figures include their staleness thresholds
+service. Hung-service figures include the heartbeat threshold ``HUNG_AFTER``
 (``services/alarm_monitor/detectors.py``).
 """
 
@@ -34,6 +34,8 @@ SCENARIOS = {
     "planner-kill": scenarios.test_planner_killed_in_the_middle_of_a_motion,
     "servo-stop": scenarios.test_servo_hung_by_sigstop,
     "planner-stop": scenarios.test_planner_hung_by_sigstop,
+    "command-kill": scenarios.test_command_killed_in_the_middle_of_a_motion,
+    "command-stop": scenarios.test_command_hung_by_sigstop,
 }
 
 

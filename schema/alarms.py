@@ -10,6 +10,12 @@ Everything here lives under ``JARA_ARM/<arm>/Monitor/``:
   queryable that answers the current one): :class:`AlarmList`, the whole list.
 * ``Monitor/report`` (subscriber): :class:`AlarmReport` that a service puts
   when it detects an alarm itself, and again when its cause has gone.
+* ``heartbeat/<service>`` (subscriber): :class:`Heartbeat` that every service
+  publishes every :data:`HEARTBEAT_PERIOD` from a real-time thread of its own.
+  A liveliness token shows connectivity, not health: a stopped or starved
+  process falls silent here while its token stays up, and a process whose
+  working loop is stuck says so in ``stuck``. Either is the service's hung
+  FAULT (0x410-0x412).
 
 The public side is ``JARA_ARM/<arm>/alarm``: an ``AlarmEvent`` for every alarm
 raised or cleared (``schema.messages.ALARM_EVENT``).
@@ -67,11 +73,11 @@ ALARM_TABLE: tuple[AlarmInfo, ...] = (
     AlarmInfo(AlarmCode.COMMAND_LOST, AlarmType.FAULT,
               "the command service is gone (its liveliness token was deleted)"),
     AlarmInfo(AlarmCode.SERVO_HUNG, AlarmType.FAULT,
-              "the servo service hangs: token up, Servo/status stale"),
+              "the servo service hangs: token up, but its heartbeat silent or a loop of it stuck"),
     AlarmInfo(AlarmCode.PLANNER_HUNG, AlarmType.FAULT,
-              "the planner service hangs: token up, Planner/progress stale"),
+              "the planner service hangs: token up, but its heartbeat silent or a loop of it stuck"),
     AlarmInfo(AlarmCode.COMMAND_HUNG, AlarmType.FAULT,
-              "the command service hangs: token up, Command/settings (its heartbeat) stale"),
+              "the command service hangs: token up, but its heartbeat silent or a loop of it stuck"),
 )
 
 #: Alarm type of every code, from :data:`ALARM_TABLE`.
@@ -97,6 +103,18 @@ class AlarmList:
     alarms: tuple[Alarm, ...]
 
 
+#: [s] every service publishes its Heartbeat this often.
+HEARTBEAT_PERIOD = 0.005
+
+
+@dataclasses.dataclass(frozen=True)
+class Heartbeat:
+    """``heartbeat/<service>``: the service's process runs; which of its working loops are stuck."""
+
+    seq: int  # counts from 0 at the process's start
+    stuck: tuple[str, ...]  # a line per loop that missed its deadline, e.g. "the servo loop: 130 ms"; () if none
+
+
 @dataclasses.dataclass(frozen=True)
 class AlarmReport:
     """``Monitor/report``: what a service detected, and whether its cause is still there."""
@@ -115,8 +133,13 @@ ALARM_REPORT = StructType(AlarmReport, (
     Member("source", w.STRING, doc="the reporting service"),
 ), strict=False, doc="Internal: a service -> the alarm monitor, Monitor/report.")
 
+HEARTBEAT = StructType(Heartbeat, (
+    Member("seq", w.ULONG, doc="counts from 0 at the process's start"),
+    Member("stuck", w.SeqType("StringSeq", w.STRING), doc="a line per loop that missed its deadline"),
+), strict=False, doc="Internal: every service -> the alarm monitor, heartbeat/<service>.")
+
 #: The Common operations the alarm monitor serves at ``Monitor/Common/<op>``.
 MONITOR_OPERATIONS: Mapping[str, Operation] = MappingProxyType(
     {name: COMMON[name] for name in (OP.clearAlarms, OP.getActiveAlarm)})
 
-MESSAGES: tuple[StructType, ...] = (ALARM_LIST, ALARM_REPORT)
+MESSAGES: tuple[StructType, ...] = (ALARM_LIST, ALARM_REPORT, HEARTBEAT)

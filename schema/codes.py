@@ -42,9 +42,9 @@ class AlarmCode(enum.IntEnum):
     SERVO_LOST = 0x400  # the servo service's liveliness token was deleted
     PLANNER_LOST = 0x401  # the planner service's token was deleted
     COMMAND_LOST = 0x402  # the command service's token was deleted
-    SERVO_HUNG = 0x410  # token up, but no Servo/status lately
-    PLANNER_HUNG = 0x411  # token up, but no Planner/progress lately
-    COMMAND_HUNG = 0x412  # token up, but no Command/settings (its heartbeat) lately
+    SERVO_HUNG = 0x410  # token up, but its heartbeat silent, or a loop of it stuck
+    PLANNER_HUNG = 0x411  # token up, but its heartbeat silent, or a loop of it stuck
+    COMMAND_HUNG = 0x412  # token up, but its heartbeat silent, or a loop of it stuck
 
 
 class StateBit(enum.IntFlag):

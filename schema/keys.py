@@ -136,8 +136,12 @@ class ArmKeys:
 
     @property
     def command_settings(self) -> str:
-        """``MotionSettings`` from the command service on change and at 4 Hz (also its heartbeat)."""
+        """``MotionSettings`` from the command service on change and at 4 Hz."""
         return f"{self.root}/Command/settings"
+
+    def heartbeat(self, service: Service | None = None) -> str:
+        """``Heartbeat`` from every service every ``HEARTBEAT_PERIOD`` (schema.alarms); ``None`` gives ``/*``."""
+        return f"{self.root}/heartbeat/{service or '*'}"
 
 
 def any_arm_log(service: Service | None = None) -> str:
@@ -173,6 +177,14 @@ def parse_alive(key: str) -> tuple[str, str]:
     parts = str(key).split("/")
     if len(parts) != 4 or parts[0] != PREFIX or parts[2] != "alive":
         raise JaraArmError(f"not a liveliness key: {key!r}")
+    return parts[1], parts[3]
+
+
+def parse_heartbeat(key: str) -> tuple[str, str]:
+    """``(arm, service)`` from a ``heartbeat`` key."""
+    parts = str(key).split("/")
+    if len(parts) != 4 or parts[0] != PREFIX or parts[2] != "heartbeat":
+        raise JaraArmError(f"not a heartbeat key: {key!r}")
     return parts[1], parts[3]
 
 
@@ -214,5 +226,7 @@ KEY_TABLE: tuple[tuple[str, str, str, str], ...] = (
     ("JARA_ARM/<arm>/Monitor/report", "subscriber (internal)", "alarm-monitor",
      "AlarmReport from the services"),
     ("JARA_ARM/<arm>/Command/settings", "publisher (internal)", "command",
-     "MotionSettings, on change and at 4 Hz (heartbeat)"),
+     "MotionSettings, on change and at 4 Hz"),
+    ("JARA_ARM/<arm>/heartbeat/<service>", "publisher (internal)", "every service",
+     "Heartbeat, every 5 ms: the process runs; which of its loops are stuck"),
 )

@@ -33,13 +33,13 @@ import zenoh
 from jara_arm.robots import robot
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
-from jara_arm.schema.alarms import ALARM_LIST, AlarmEventKind
+from jara_arm.schema.alarms import ALARM_LIST, AlarmEventKind, format_code
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
-from jara_arm.services.alarm_monitor.detectors import STALE_AFTER
+from jara_arm.services.alarm_monitor.detectors import HUNG_AFTER
 from jara_arm.services.planner.kinematics import Kinematics
 from jara_arm.services.servo.loop import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
@@ -486,14 +486,29 @@ def test_control_point_crosses_the_cartesian_soft_limits(arm: System):
     check_back_to_work(arm, servo_on_needed=False)
 
 
-def kill_mid_motion(arm: System, service: Service, code: AlarmCode) -> float:
-    """SIGKILL ``service`` while the arm moves; checks up to its restart. The time of the kill [s]."""
+def start_long_motion(arm: System) -> int:
+    """Two queued PTPs, the arm under way in the first; the index of the next alarm event."""
     arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 20}))
     arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.6,) + (0.0,) * (N - 1)}))
     arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.3,) + (0.0,) * (N - 1)}))
     since = arm.mark()
     time.sleep(0.5)
     assert arm.state() & StateBit.MOVING
+    return since
+
+
+def check_fault_without(arm: System, service: Service, code: AlarmCode) -> None:
+    """While ``service`` is down or stopped: the other Common interface lists the FAULT and sets bit 0x04."""
+    common = arm.servo if service is Service.COMMAND else arm.common  # ask one that answers
+    reply = common(OP.getActiveAlarm)  # forwarded to the monitor
+    assert [(a.code, a.type) for a in arm.ok(reply)["alarms"]] == [(code, AlarmType.FAULT)], reply
+    wait_until(lambda: common(OP.getState)["state"] & StateBit.ALARM, 0.5, 0.005,
+               f"bit 0x04 of the {'servo' if service is Service.COMMAND else 'command'}'s state")
+
+
+def kill_mid_motion(arm: System, service: Service, code: AlarmCode) -> float:
+    """SIGKILL ``service`` while the arm moves; checks up to its restart. The time of the kill [s]."""
+    since = start_long_motion(arm)
     pid = arm.pid(service)
     mark = len(arm.proc.lines)
     cause = time.time()
@@ -501,13 +516,28 @@ def kill_mid_motion(arm: System, service: Service, code: AlarmCode) -> float:
     t, event = arm.event(code, since)
     latency(f"{service.value} SIGKILL", cause, t)
     assert event.alarm.type is AlarmType.FAULT and service.value in event.alarm.description
-    reply = arm.common(OP.getActiveAlarm)  # the command asks the monitor: the servo may be down
-    assert [(a.code, a.type) for a in arm.ok(reply)["alarms"]] == [(code, AlarmType.FAULT)], reply
-    wait_until(lambda: arm.state() & StateBit.ALARM, 0.5, 0.005, "bit 0x04 of the command's state")
+    check_fault_without(arm, service, code)
     arm.proc.wait_for_line(f"died with SIGKILL; restarting", timeout=5, start=mark)
     arm.proc.wait_for_line(f"arm0/{service.value}: {service.value} up", timeout=20, start=mark)
     wait_alive(arm.session, "arm0", [service], timeout=10)
-    check_alarm(arm, code, AlarmType.FAULT, servo_on=False)  # the servo's interface agrees again
+    check_alarm(arm, code, AlarmType.FAULT, servo_on=False)  # both interfaces agree again
+    check_queue_discarded(arm)
+    return cause
+
+
+def hang_mid_motion(arm: System, service: Service, code: AlarmCode) -> float:
+    """SIGSTOP ``service`` while the arm moves, SIGCONT once the FAULT is raised and kept; the cause [s]."""
+    since = start_long_motion(arm)
+    cause = time.time()
+    with stopped(arm.pid(service)):
+        t, event = arm.event(code, since)
+        latency(f"{service.value} SIGSTOP (threshold {HUNG_AFTER * 1e3:.0f} ms)", cause, t)
+        assert event.alarm.type is AlarmType.FAULT and "hangs" in event.alarm.description, event
+        check_fault_without(arm, service, code)
+        via = arm.servo if service is Service.COMMAND else arm.common
+        kept = via(OP.clearAlarms)  # its cause is still there
+        assert kept.id == ReturnCode.STATUS_ERR and format_code(code) in kept.comment, kept
+    check_alarm(arm, code, AlarmType.FAULT, servo_on=False)
     check_queue_discarded(arm)
     return cause
 
@@ -527,35 +557,30 @@ def test_planner_killed_in_the_middle_of_a_motion(arm: System):
 
 
 def test_servo_hung_by_sigstop(arm: System):
-    """Servo SIGSTOP (token up, streams stale): FAULT 0x410; after SIGCONT the arm stops, smoothly."""
-    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 20}))
-    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.5,) + (0.0,) * (N - 1)}))
-    since = arm.mark()
-    time.sleep(0.5)
-    pid = arm.pid(Service.SERVO)
-    cause = time.time()
-    with stopped(pid):
-        t, event = arm.event(AlarmCode.SERVO_HUNG, since)
-        latency(f"servo SIGSTOP (threshold {STALE_AFTER[Service.SERVO] * 1e3:.0f} ms)", cause, t)
-        assert event.alarm.type is AlarmType.FAULT and "hangs" in event.alarm.description
-        wait_until(lambda: arm.state() & StateBit.ALARM, 0.5, 0.005, "bit 0x04 of the command's state")
-        kept = arm.common(OP.clearAlarms)
-        assert kept.id == ReturnCode.STATUS_ERR and "0x410" in kept.comment, kept
-    check_alarm(arm, AlarmCode.SERVO_HUNG, AlarmType.FAULT, servo_on=False)
-    check_queue_discarded(arm)
+    """Servo SIGSTOP (token up, heartbeat silent): FAULT 0x410; after SIGCONT the arm stops, smoothly."""
+    cause = hang_mid_motion(arm, Service.SERVO, AlarmCode.SERVO_HUNG)
     check_no_jump(arm, since=cause)
     check_back_to_work(arm)
 
 
 def test_planner_hung_by_sigstop(arm: System):
-    """Planner SIGSTOP at rest: FAULT 0x411 after its threshold; clearable after SIGCONT."""
-    since = arm.mark()
-    cause = time.time()
-    with stopped(arm.pid(Service.PLANNER)):
-        t, event = arm.event(AlarmCode.PLANNER_HUNG, since)
-        latency(f"planner SIGSTOP (threshold {STALE_AFTER[Service.PLANNER] * 1e3:.0f} ms)", cause, t)
-        check_alarm(arm, AlarmCode.PLANNER_HUNG, AlarmType.FAULT, servo_on=False)
-        assert arm.middle(OP.goHome).id in (ReturnCode.STATUS_ERR, ReturnCode.NOT_SV_ON_ERR)
+    """Planner SIGSTOP mid-motion: FAULT 0x411; the servo stops the arm from what it has; clearable after SIGCONT."""
+    cause = hang_mid_motion(arm, Service.PLANNER, AlarmCode.PLANNER_HUNG)
+    check_no_jump(arm, since=cause)
+    check_back_to_work(arm)
+
+
+def test_command_killed_in_the_middle_of_a_motion(arm: System):
+    """Command SIGKILL: FAULT 0x402; the arm stops smoothly, the servo goes off; restarted, back to work."""
+    cause = kill_mid_motion(arm, Service.COMMAND, AlarmCode.COMMAND_LOST)
+    check_no_jump(arm, since=cause)
+    check_back_to_work(arm)
+
+
+def test_command_hung_by_sigstop(arm: System):
+    """Command SIGSTOP mid-motion: FAULT 0x412 while its token stays; the arm stops; back to work after SIGCONT."""
+    cause = hang_mid_motion(arm, Service.COMMAND, AlarmCode.COMMAND_HUNG)
+    check_no_jump(arm, since=cause)
     check_back_to_work(arm)
 
 
@@ -627,15 +652,32 @@ def test_rating_debounce_and_crossing():
     assert cross.update((1.02,)) is None and not cross.present
 
 
-def test_service_watch_lost_and_stale():
-    from jara_arm.services.alarm_monitor.detectors import ServiceWatch
+def test_service_watch_lost_stale_and_stuck():
+    from jara_arm.services.alarm_monitor.detectors import (ALL_SILENT_AFTER, CORROBORATE, ServiceWatch,
+                                                           corroborated)
 
     watch = ServiceWatch(Service.SERVO, stale_after=0.05)
     assert not watch.token(True, now=10.0) and not watch.stale(10.04)
     assert watch.stale(10.06)  # up, never heard: silent since its token appeared
     watch.heard(10.06)
     assert not watch.stale(10.1) and watch.stale(10.2)
-    assert watch.token(False, now=10.3) and not watch.stale(11.0)  # gone is lost, not hung
+    # Nothing shows the heartbeat could have come: the longer threshold.
+    assert not watch.stale(10.06 + ALL_SILENT_AFTER - 0.01, corroborated=False)
+    assert watch.stale(10.06 + ALL_SILENT_AFTER + 0.01, corroborated=False)
+    watch.heard(10.3, ("the servo loop has not turned for 150 ms (deadline 100 ms)",))
+    assert watch.hung(10.3) and not watch.stale(10.3)  # stuck while beating
+    watch.heard(10.31)
+    assert not watch.hung(10.32)
+    assert watch.token(False, now=10.4) and not watch.stale(11.0) and not watch.hung(11.0)  # lost, not hung
+    planner = ServiceWatch(Service.PLANNER)
+    planner.token(True, now=10.0)
+    planner.heard(11.0)
+    watches = (watch, planner)
+    assert not corroborated(watches, Service.PLANNER, 11.0)  # the servo's token is down: no witness
+    watch.token(True, now=11.0)
+    watch.heard(11.0)
+    assert corroborated(watches, Service.PLANNER, 11.0 + CORROBORATE - 0.001)
+    assert not corroborated(watches, Service.PLANNER, 11.0 + CORROBORATE + 0.001)
 
 
 def test_newer_alarm_lists():

@@ -25,11 +25,16 @@ Thresholds and margins (the README's "Alarms" table repeats them):
 * lost (0x400-0x402, FAULT): the liveliness token of the servo, planner or
   command service is deleted after it was seen. The cause is present until the
   token is back (the launcher restarts the process).
-* hung (0x410-0x412, FAULT): the token is up, but the service's periodic
-  stream has been silent for longer than its threshold (``STALE_AFTER``):
-  servo ``Servo/status`` (100 Hz), planner
-  ``Planner/progress`` (at least 10 Hz), command ``Command/settings`` (4 Hz
-  heartbeat). The cause is present while the stream is stale.
+* hung (0x410-0x412, FAULT): the token is up, but the service's heartbeat
+  (``heartbeat/<service>``, every 5 ms from a real-time thread) has been
+  silent for longer than ``HUNG_AFTER`` (a process stopped or starved of the
+  CPU), or the heartbeat names a working loop of the service that missed its
+  deadline (``stuck``). Silence counts only while some other service's
+  heartbeat arrived within ``CORROBORATE``: that shows the way from the
+  services to the monitor works, so the silence is the service's own. When
+  every heartbeat is silent at once (the router, the network or the monitor's
+  input is held up, or all are hung), ``ALL_SILENT_AFTER`` applies instead.
+  The cause is present while the heartbeat is silent or names a stuck loop.
 """
 
 from __future__ import annotations
@@ -55,15 +60,14 @@ OVERSPEED_SAMPLES = 2
 JOINT_LIMIT_TOLERANCE = 5e-3
 #: The control point beyond the Cartesian soft limit by more than this has crossed it [m].
 CARTESIAN_LIMIT_TOLERANCE = 1e-3
-#: A service whose stream has been silent this long while its token is up hangs [s].
-STALE_AFTER: dict[Service, float] = {
-    # Servo/status at 100 Hz. On a busy 2-core machine it was seen silent for up to
-    # ~100 ms while the servo was fine (the router and Zenoh's threads run at normal
-    # priority): a false FAULT stops the arm, so the threshold keeps a margin over that.
-    Service.SERVO: 0.2,
-    Service.PLANNER: 0.5,  # Planner/progress at least at 10 Hz
-    Service.COMMAND: 1.0,  # Command/settings at 4 Hz
-}
+#: A service whose heartbeat has been silent this long while its token is up hangs [s]:
+#: six heartbeat periods, so that detection stays within 50 ms of the cause (at most
+#: 30 ms + one monitor poll + the transport) while five lost beats in a row are tolerated.
+HUNG_AFTER = 0.03
+#: ... provided another service's heartbeat arrived this recently [s] (three periods).
+CORROBORATE = 0.015
+#: Every heartbeat silent at once: each service hangs after this long [s].
+ALL_SILENT_AFTER = 0.5
 LOST_CODE: dict[Service, AlarmCode] = {
     Service.SERVO: AlarmCode.SERVO_LOST,
     Service.PLANNER: AlarmCode.PLANNER_LOST,
@@ -142,13 +146,14 @@ class Crossing:
 
 @dataclasses.dataclass
 class ServiceWatch:
-    """Liveliness and stream freshness of one service that is needed to move the arm."""
+    """Liveliness and heartbeat of one service that is needed to move the arm."""
 
     service: Service
-    stale_after: float  # [s]
+    stale_after: float = HUNG_AFTER  # [s]
     alive: bool = False
     up_at: float = -float("inf")  # [s] monotonic time its token appeared
-    heard_at: float = -float("inf")  # [s] monotonic time of its newest message
+    heard_at: float = -float("inf")  # [s] monotonic time of its newest heartbeat
+    stuck: tuple[str, ...] = ()  # the newest heartbeat's stuck loops
 
     def token(self, up: bool, now: float) -> bool:
         """A liveliness change; True if the service was alive and is now gone."""
@@ -156,15 +161,28 @@ class ServiceWatch:
         self.alive = up
         if up and not was:
             self.up_at = now
+            self.stuck = ()
         return was and not up
 
-    def heard(self, now: float) -> None:
+    def heard(self, now: float, stuck: tuple[str, ...] = ()) -> None:
         self.heard_at = now
+        self.stuck = stuck
 
     def silence(self, now: float) -> float:
-        """[s] since the newest message (or since the token appeared, if later)."""
+        """[s] since the newest heartbeat (or since the token appeared, if later)."""
         return now - max(self.heard_at, self.up_at)
 
-    def stale(self, now: float) -> bool:
-        """Token up, stream silent for longer than ``stale_after``."""
-        return self.alive and self.silence(now) > self.stale_after
+    def stale(self, now: float, corroborated: bool = True) -> bool:
+        """Token up, heartbeat silent for longer than ``stale_after`` (``ALL_SILENT_AFTER`` if
+        nothing shows that the heartbeat could have come)."""
+        limit = self.stale_after if corroborated else max(self.stale_after, ALL_SILENT_AFTER)
+        return self.alive and self.silence(now) > limit
+
+    def hung(self, now: float, corroborated: bool = True) -> bool:
+        """Silent (see :meth:`stale`), or a loop of it stuck."""
+        return self.alive and (bool(self.stuck) or self.stale(now, corroborated))
+
+
+def corroborated(watches: Sequence[ServiceWatch], service: Service, now: float) -> bool:
+    """Whether another watched service's heartbeat arrived within ``CORROBORATE`` of ``now``."""
+    return any(now - w.heard_at <= CORROBORATE for w in watches if w.service != service and w.alive)

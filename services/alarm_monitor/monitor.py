@@ -23,19 +23,19 @@ import zenoh
 
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec, messages
-from jara_arm.schema.alarms import (ALARM_LIST, ALARM_REPORT, AlarmEventKind, AlarmList, format_code,
-                                    make_alarm)
+from jara_arm.schema.alarms import (ALARM_LIST, ALARM_REPORT, HEARTBEAT, AlarmEventKind, AlarmList,
+                                    format_code, make_alarm)
 from jara_arm.schema.codes import AlarmCode
 from jara_arm.schema.errors import JaraArmError, WireError
-from jara_arm.schema.keys import ArmKeys, Service, parse_alive
+from jara_arm.schema.keys import ArmKeys, Service, parse_alive, parse_heartbeat
 from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
 from jara_arm.services.planner.kinematics import Kinematics, hg_to_se3
 
 from .book import AlarmBook
 from .detectors import (CARTESIAN_LIMIT_TOLERANCE, HUNG_CODE, JOINT_LIMIT_TOLERANCE, LOST_CODE,
-                        OVERLOAD_MARGIN, OVERLOAD_SAMPLES, OVERSPEED_MARGIN, OVERSPEED_SAMPLES, STALE_AFTER,
-                        AboveRating, Crossing, ServiceWatch)
+                        OVERLOAD_MARGIN, OVERLOAD_SAMPLES, OVERSPEED_MARGIN, OVERSPEED_SAMPLES, AboveRating,
+                        Crossing, ServiceWatch, corroborated)
 from .reactions import Reactions
 
 log = logging.getLogger(__name__)
@@ -72,8 +72,7 @@ class Monitor:
         self._robot_from_arm = np.eye(4)  # inv(B): arm frame -> robot frame
         self._tool = np.zeros(3)  # [m] control point in the flange frame (translation of C)
         self._n = n
-        self.watches = {s: ServiceWatch(s, STALE_AFTER[s]) for s in (Service.SERVO, Service.PLANNER,
-                                                                   Service.COMMAND)}
+        self.watches = {s: ServiceWatch(s) for s in (Service.SERVO, Service.PLANNER, Service.COMMAND)}
         ring, fifo = zenoh.handlers.RingChannel, zenoh.handlers.FifoChannel
         self._estop = session.declare_subscriber(keys.estop, fifo(64))
         self._reports = session.declare_subscriber(keys.monitor_report, fifo(1024))
@@ -81,7 +80,7 @@ class Monitor:
         # Servo/status (100 Hz) carries the measured joints too: Servo/posFeedback (1 kHz) would
         # cost the monitor and the router ten times the work for no alarm sooner than 10 ms.
         self._status = session.declare_subscriber(keys.servo_status, fifo(256))
-        self._progress = session.declare_subscriber(keys.planner_progress, ring(1))
+        self._heartbeats = session.declare_subscriber(keys.heartbeat(), fifo(1024))
         self._settings_sub = session.declare_subscriber(keys.command_settings, ring(1))
         self._event_pub = session.declare_publisher(keys.alarm, express=True)
         self._list_pub = session.declare_publisher(keys.monitor_alarms, express=True)
@@ -107,7 +106,7 @@ class Monitor:
         self._stop.set()
         self._thread.join(timeout=2.0)
         self._reactions.close()
-        for entity in (self._estop, self._reports, self._alive, self._status, self._progress,
+        for entity in (self._estop, self._reports, self._alive, self._status, self._heartbeats,
                        self._settings_sub, self._event_pub, self._list_pub, self._list_q):
             try:
                 entity.undeclare()
@@ -153,16 +152,13 @@ class Monitor:
                 continue
             if self.book.report(report):
                 self._raised(report.alarm, f"reported by the {report.source}")
+        self._drain_heartbeats(now)
         while (s := self._status.try_recv()) is not None:
-            self.watches[Service.SERVO].heard(now)
             try:
                 self._on_status(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
             except WireError as exc:
                 log.error("ignored a malformed servo status: %s", exc)
-        if self._progress.try_recv() is not None:
-            self.watches[Service.PLANNER].heard(now)
         if (s := self._settings_sub.try_recv()) is not None:
-            self.watches[Service.COMMAND].heard(now)
             try:
                 self._on_settings(codec.decode_message(MOTION_SETTINGS, s.payload.to_bytes()))
             except WireError as exc:
@@ -203,13 +199,36 @@ class Monitor:
             elif up:
                 log.info("the %s service is up", service.value)
 
+    def _drain_heartbeats(self, now: float) -> None:
+        while (s := self._heartbeats.try_recv()) is not None:
+            try:
+                _arm, name = parse_heartbeat(str(s.key_expr))
+                watch = self.watches.get(Service(name))
+            except (JaraArmError, ValueError):
+                continue  # someone else's heartbeat under our prefix
+            if watch is None:
+                continue
+            try:
+                beat = codec.decode_message(HEARTBEAT, s.payload.to_bytes())
+            except WireError as exc:
+                log.error("ignored a malformed heartbeat of the %s: %s", name, exc)
+                continue
+            watch.heard(now, beat.stuck)
+
+    def _hung(self, watch: ServiceWatch, now: float) -> bool:
+        return watch.hung(now, corroborated(tuple(self.watches.values()), watch.service, now))
+
     def _judge_staleness(self, now: float) -> None:
         for service, watch in self.watches.items():
             code = HUNG_CODE[service]
-            if code not in self.book and watch.stale(now):
-                self._raise(code, f"the {service.value} service hangs: nothing from it for "
-                            f"{watch.silence(now) * 1e3:.0f} ms (threshold {watch.stale_after * 1e3:.0f} ms) "
-                            "while its liveliness token is up")
+            if code in self.book or not self._hung(watch, now):
+                continue
+            if watch.stuck:
+                why = "; ".join(watch.stuck)
+            else:
+                why = (f"no heartbeat for {watch.silence(now) * 1e3:.0f} ms (threshold "
+                       f"{watch.stale_after * 1e3:.0f} ms; stopped, or starved of the CPU)")
+            self._raise(code, f"the {service.value} service hangs while its liveliness token is up: {why}")
 
     def _on_status(self, st: messages.ServoStatus) -> None:
         if st.softLimitJoint:
@@ -272,7 +291,7 @@ class Monitor:
             if code == LOST_CODE[service]:
                 return not watch.alive
             if code == HUNG_CODE[service]:
-                return watch.stale(time.monotonic())
+                return self._hung(watch, time.monotonic())
         return False  # emergency stop: a put is an event, gone once acknowledged
 
     # -- the list -------------------------------------------------------------------

@@ -17,7 +17,9 @@ from jara_arm.schema import codec
 from jara_arm.schema.keys import Service
 from jara_arm.schema.messages import STATE_MESSAGE, StateMessage
 from jara_arm.schema.operations import COMMON, MIDDLE, Interface
+from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import MonitorLink
+from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
@@ -25,7 +27,7 @@ from .cartesian import CartesianFeedback, reach
 from .common import CommandCommon
 from .core import Core
 from .feedback import JointFeedback
-from .heartbeat import HEARTBEAT_PERIOD, SettingsPublisher
+from .settings_publisher import SETTINGS_PERIOD, SettingsPublisher
 from .links import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT, PlannerLink, ServoLink
 from .middle import CommandMiddle
 from .queue import DEFAULT_CAPACITY, MotionQueue
@@ -43,13 +45,27 @@ def state_payload(view: StateView) -> bytes:
     return codec.dumps(body)
 
 
+#: SCHED_FIFO priority of the heartbeat thread and Zenoh's threads; the command's own
+#: work (queries, the watcher) stays under the normal scheduler.
+DEFAULT_RT_PRIORITY = 20
+#: The main loop or the state watcher not turning for this long is a stuck command service [s].
+MAIN_DEADLINE = 1.0
+WATCHER_DEADLINE = 0.5
+
+
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
          queue_capacity: int = DEFAULT_CAPACITY, servo_timeout: float = SERVO_TIMEOUT,
-         plan_timeout: float = PLAN_TIMEOUT) -> None:
+         plan_timeout: float = PLAN_TIMEOUT, realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
     with service_session(conf, arm, Service.COMMAND) as (session, keys):
+        # Only Zenoh's threads exist yet: they carry the heartbeat out; a busy machine
+        # must not delay it into a hung alarm.
+        realtime_process(realtime_priority, "command (Zenoh's threads)", skip_caller=True)
+        heartbeat = Heartbeat(session, keys, Service.COMMAND, realtime_priority)
+        main_pulse = heartbeat.pulse("the command's main loop", MAIN_DEADLINE)
+        heartbeat.start()
         state_pub = session.declare_publisher(keys.state)
         tracker = StateTracker(MotionQueue(queue_capacity), lambda v: state_pub.put(state_payload(v)))
-        watcher = Watcher(session, keys, tracker)
+        watcher = Watcher(session, keys, tracker, heartbeat.pulse("the state watcher", WATCHER_DEADLINE))
         watcher.start()
         servo = ServoLink(session, keys, servo_timeout)
         core = Core(robot, keys, servo, PlannerLink(session, keys, plan_timeout, CONTROL_TIMEOUT),
@@ -58,7 +74,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
         cartesian = CartesianFeedback(robot)
         settings = Settings.defaults(robot, reach(cartesian.kinematics))
         settings_pub = SettingsPublisher(session, keys, tracker, robot, settings)
-        settings_pub.heartbeat()
+        settings_pub.republish()
         common = InterfaceServer(session, keys.interface(Interface.COMMON), COMMON, CommandCommon(core),
                                  "command-common")
         middle = InterfaceServer(session, keys.interface(Interface.MIDDLE), MIDDLE,
@@ -71,12 +87,14 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
         log.info("command up: arm %s, robot %s (%d axes), queue capacity %d, reach %.3f m", arm,
                  robot.name, robot.axis_num, queue_capacity, settings.reach)
         try:
-            while not stop.wait(HEARTBEAT_PERIOD):
+            while not stop.wait(SETTINGS_PERIOD):
+                main_pulse.beat()
                 if not watcher.alive:
                     raise RuntimeError("the state watcher thread died")
-                settings_pub.heartbeat()
+                settings_pub.republish()
         finally:
             token.undeclare()
+            heartbeat.close()
             common.close()
             middle.close()
             feedback.close()
@@ -114,6 +132,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         f"(default: {DEFAULT_CAPACITY})")
     parser.add_argument("--servo-timeout", type=_positive_seconds, default=SERVO_TIMEOUT, metavar="S",
                         help=f"time the servo has to answer a query [s] (default: {SERVO_TIMEOUT:g})")
+    parser.add_argument("--realtime-priority", type=int, default=DEFAULT_RT_PRIORITY, metavar="N",
+                        help="SCHED_FIFO priority of the heartbeat and of Zenoh's threads, 1..99; 0 for "
+                        f"normal scheduling (default: {DEFAULT_RT_PRIORITY})")
     parser.add_argument("--plan-timeout", type=_positive_seconds, default=PLAN_TIMEOUT, metavar="S",
                         help=f"time the planner has to plan one motion [s] (default: {PLAN_TIMEOUT:g})")
 

@@ -19,6 +19,8 @@ from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.planner import PLANNER_PROGRESS
 
+from jara_arm.services.runtime.heartbeat import Pulse
+
 from .state import StateTracker
 
 log = logging.getLogger(__name__)
@@ -32,8 +34,10 @@ _ALARMS_FIFO = 64  #: Monitor/alarms lists kept between drains
 class Watcher:
     """Subscribes to ``Servo/status``, ``Planner/progress``, the planner's liveliness and ``Monitor/alarms``."""
 
-    def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker) -> None:
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker,
+                 pulse: Pulse | None = None) -> None:
         self._tracker = tracker
+        self._pulse = pulse or Pulse("the state watcher", 0.5)
         self._status = session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(_STATUS_RING))
         self._progress = session.declare_subscriber(keys.planner_progress,
                                                     zenoh.handlers.FifoChannel(_PROGRESS_FIFO))
@@ -62,6 +66,7 @@ class Watcher:
 
     def _run(self) -> None:
         while not self._stop.wait(POLL_PERIOD):
+            self._pulse.beat()
             self.drain()
 
     def drain(self) -> None:

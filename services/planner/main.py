@@ -44,11 +44,12 @@ from jara_arm.schema.planner import (
     PlannerProgress,
     PlanReply,
 )
+from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
 from .planning import PlanRefused
-from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, Streamer
+from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, LOOP_DEADLINE as STREAMER_DEADLINE, Streamer
 from .worker import PlanningProcess
 
 log = logging.getLogger("jara_arm.planner")
@@ -103,9 +104,12 @@ class PlannerService:
                                                   priority=zenoh.Priority.REAL_TIME)
         self._progress_pub = session.declare_publisher(keys.planner_progress, express=True)
         self._status_sub = session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(1))
+        self.heartbeat = Heartbeat(session, keys, Service.PLANNER, max(0, realtime_priority - 1))
         self.streamer = Streamer(model.dof, model.cmd_cycle, self._cmd_pub.put, self._put_progress,
-                                 self._poll_status, lead=lead, realtime_priority=realtime_priority)
+                                 self._poll_status, lead=lead, realtime_priority=realtime_priority,
+                                 pulse=self.heartbeat.pulse("the streamer loop", STREAMER_DEADLINE))
         self.streamer.start()
+        self.heartbeat.start()
         self._plan_q = session.declare_queryable(keys.planner_plan,
                                                  zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
         self._control_q = session.declare_queryable(keys.planner_control,
@@ -181,6 +185,7 @@ class PlannerService:
         return self.streamer.alive
 
     def close(self) -> None:
+        self.heartbeat.close()
         for entity in (self._plan_q, self._control_q):
             try:
                 entity.undeclare()

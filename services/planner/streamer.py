@@ -42,6 +42,7 @@ from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.planner import ControlAction, PlannerProgress
 from jara_arm.schema.types import Time, TimedJointPos
 
+from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.realtime import realtime_thread
 
 from .planning import PlanRefused
@@ -63,6 +64,8 @@ START_TOLERANCE = 1e-4
 SETTLE = 0.03
 PROGRESS_PERIOD = 0.1  # [s] progress is published at least this often
 _IDLE_WAIT = 0.005  # [s] engine period while there is nothing to send
+#: The engine not turning for this long is a stuck planner (its heartbeat says so) [s].
+LOOP_DEADLINE = 0.25
 _LOW_DEPTH = 2.0  # [commands] an estimated FIFO depth this low while streaming is worth a warning
 
 
@@ -105,8 +108,9 @@ class Streamer:
     def __init__(self, dof: int, period: float, publish: Callable[[bytes], None],
                  publish_progress: Callable[[PlannerProgress], None],
                  poll_status: Callable[[], ServoStatus | None], *, lead: float = DEFAULT_LEAD,
-                 realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+                 realtime_priority: int = DEFAULT_RT_PRIORITY, pulse: Pulse | None = None) -> None:
         self.dof = dof
+        self._pulse = pulse or Pulse("the streamer loop", LOOP_DEADLINE)
         self.period = period  # [s] servo cycle
         self.lead = lead  # [s]
         self._publish = publish
@@ -313,6 +317,7 @@ class Streamer:
         last_progress_at = 0.0
         last_now = last_late_log = time.time()
         while not self._stop_event.is_set():
+            self._pulse.beat()
             try:
                 status = self._poll_status()
                 now = time.time()

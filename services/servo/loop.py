@@ -40,6 +40,7 @@ from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.monitor_link import is_newer
+from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.realtime import realtime_thread
 
 from .braking import Braking, Glide
@@ -72,6 +73,9 @@ _LIMIT_EPS = 1e-9
 UNDERRUN_GRACE = 10
 #: Behind schedule by more than this, the loop stops catching up and restarts its clock [s].
 RESYNC_AFTER = 0.1
+#: The loop not turning for this long is a stuck servo (the heartbeat says so) [s]: a
+#: hundred missed cycles, well beyond the stalls it rides through (RESYNC_AFTER).
+LOOP_DEADLINE = 0.1
 STATUS_EVERY = 10  # cycles between ServoStatus messages
 HEALTH_EVERY = 1.0  # [s] between LoopHealth messages
 #: SCHED_FIFO priority of the loop thread (Linux 1..99; 0 = normal scheduling).
@@ -113,8 +117,10 @@ class ServoLoop:
     """The low-level controller of one arm (see module docstring)."""
 
     def __init__(self, model: RobotModel, session: zenoh.Session, keys: ArmKeys,
-                 realtime_priority: int = DEFAULT_RT_PRIORITY, obstacles: tuple[Obstacle, ...] = ()) -> None:
+                 realtime_priority: int = DEFAULT_RT_PRIORITY, obstacles: tuple[Obstacle, ...] = (),
+                 pulse: Pulse | None = None) -> None:
         self.model = model
+        self._pulse = pulse or Pulse("the servo loop", LOOP_DEADLINE)
         self._rt_priority = realtime_priority
         self.dt = model.cmd_cycle
         self.world = World(model, obstacles)
@@ -209,6 +215,7 @@ class ServoLoop:
         cycles = 0
         try:
             while not self._stop.is_set():
+                self._pulse.beat()
                 now = time.monotonic_ns()
                 if now < next_ns:
                     time.sleep((next_ns - now) * 1e-9)

@@ -20,12 +20,13 @@ from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
+from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer, ok, refuse
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
-from .loop import DEFAULT_RT_PRIORITY, ServoLoop
+from .loop import DEFAULT_RT_PRIORITY, LOOP_DEADLINE, ServoLoop
 
 log = logging.getLogger("jara_arm.servo")
 
@@ -113,8 +114,11 @@ def check_soft_limits(limits: Sequence[LimitValue], model: RobotModel) -> None:
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
          realtime_priority: int = DEFAULT_RT_PRIORITY, obstacle: Sequence[Obstacle] | None = None) -> None:
     with service_session(conf, arm, Service.SERVO) as (session, keys):
-        loop = ServoLoop(robot, session, keys, realtime_priority, tuple(obstacle or ()))
+        heartbeat = Heartbeat(session, keys, Service.SERVO, max(0, realtime_priority - 1))
+        loop = ServoLoop(robot, session, keys, realtime_priority, tuple(obstacle or ()),
+                         heartbeat.pulse("the servo loop", LOOP_DEADLINE))
         loop.start()
+        heartbeat.start()
         common = ServoCommon(loop, MonitorLink(session, keys))
         server = InterfaceServer(session, keys.servo_common(), COMMON, common, "servo-rpc")
         if common.refresh():  # a restarted servo knows the active alarms before it says it is up
@@ -133,6 +137,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                     raise RuntimeError("the servo loop thread died")
         finally:
             token.undeclare()
+            heartbeat.close()
             server.close()
             loop.stop()
             log.info("servo down")

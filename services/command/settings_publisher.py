@@ -1,10 +1,9 @@
-"""``Command/settings``: the command's settings, for the alarm monitor, and its heartbeat.
+"""``Command/settings``: the command's settings, for the alarm monitor.
 
 The alarm monitor checks the control point against the Cartesian soft limits
 with the command's base offset and control point offset, so it needs the
-settings as they are now: they are published on every change. They are also
-published every ``HEARTBEAT_PERIOD`` from the service's main thread, so that a
-command process that hangs (its liveliness token still up) falls silent here.
+settings as they are now: they are published on every change, and again every
+``SETTINGS_PERIOD`` so that a monitor that started later catches up.
 """
 
 from __future__ import annotations
@@ -22,12 +21,12 @@ from jara_arm.schema.planner import MOTION_SETTINGS
 from .settings import Settings
 from .state import StateTracker
 
-#: Settings are published at least this often [s] (4 Hz); the monitor's staleness threshold is a few of them.
-HEARTBEAT_PERIOD = 0.25
+#: Settings are published at least this often [s] (4 Hz).
+SETTINGS_PERIOD = 0.25
 
 
 class SettingsPublisher:
-    """Publishes a ``MotionSettings`` snapshot on change and on every heartbeat; thread-safe."""
+    """Publishes a ``MotionSettings`` snapshot on change and every ``SETTINGS_PERIOD``; thread-safe."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker, robot: RobotModel,
                  settings: Settings) -> None:
@@ -44,10 +43,10 @@ class SettingsPublisher:
             self._settings = settings
             self._put()
 
-    def heartbeat(self) -> None:
+    def republish(self) -> None:
         """Publish again unless a change did within the last half period."""
         with self._lock:
-            if time.monotonic() - self._at >= 0.5 * HEARTBEAT_PERIOD:
+            if time.monotonic() - self._at >= 0.5 * SETTINGS_PERIOD:
                 self._put()
 
     def _put(self) -> None:

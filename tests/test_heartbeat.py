@@ -1,0 +1,74 @@
+"""The services' heartbeat (``services/runtime/heartbeat.py``) on a real Zenoh session.
+
+The alarm monitor's side (silence and stuck loops raise the hung FAULTs) is
+provoked for real in ``test_alarms.py``; here: what a heartbeat says.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+
+import pytest
+import zenoh
+
+from jara_arm.schema import codec
+from jara_arm.schema.alarms import HEARTBEAT, HEARTBEAT_PERIOD
+from jara_arm.schema.keys import ArmKeys, Service, parse_heartbeat
+from jara_arm.services.runtime.heartbeat import Heartbeat, Pulse
+
+from .support import endpoint, free_port, wait_until
+
+
+@pytest.fixture
+def session():
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", f'["{endpoint(free_port())}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as s:
+        yield s
+
+
+def test_beats_name_the_service_count_up_and_report_a_stuck_loop(session: zenoh.Session):
+    keys = ArmKeys("hb-test")
+    beats: collections.deque = collections.deque()
+    sub = session.declare_subscriber(keys.heartbeat(), lambda s: beats.append(
+        (str(s.key_expr), codec.decode_message(HEARTBEAT, s.payload.to_bytes()))))
+    heartbeat = Heartbeat(session, keys, Service.PLANNER)
+    pulse = heartbeat.pulse("the test loop", deadline=0.2)
+    heartbeat.start()
+    try:
+        wait_until(lambda: len(beats) >= 10, 5.0, what="ten heartbeats")
+        assert {parse_heartbeat(k) for k, _ in list(beats)} == {("hb-test", Service.PLANNER.value)}
+        seqs = [b.seq for _, b in list(beats)]
+        assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))  # one per period, none skipped
+        assert all(b.stuck == () for _, b in list(beats))  # never beaten yet: not judged
+
+        # A loop that beats is healthy; one that stops is named once its deadline has passed.
+        beats.clear()
+        end = time.monotonic() + 0.3
+        while time.monotonic() < end:
+            pulse.beat()
+            time.sleep(HEARTBEAT_PERIOD / 2)
+        assert beats and all(b.stuck == () for _, b in list(beats))
+        stuck = wait_until(lambda: next((b.stuck for _, b in list(beats) if b.stuck), None), 2.0,
+                           what="a heartbeat naming the stuck loop")
+        assert len(stuck) == 1 and stuck[0].startswith("the test loop has not turned for ")
+        assert "(deadline 200 ms)" in stuck[0]
+        pulse.beat()
+        time.sleep(0.02)
+        beats.clear()
+        wait_until(lambda: len(beats) >= 3, 2.0, what="more heartbeats")
+        assert all(b.stuck == () for _, b in list(beats))
+    finally:
+        heartbeat.close()
+        sub.undeclare()
+    n = len(beats)
+    time.sleep(0.05)
+    assert len(beats) == n  # closed: silent
+
+
+def test_pulse_deadline_must_be_positive():
+    with pytest.raises(ValueError, match="positive"):
+        Pulse("a loop", 0.0)
