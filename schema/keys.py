@@ -134,6 +134,11 @@ class ArmKeys:
         """``AlarmReport`` from any service to the alarm monitor: raised, or its cause gone."""
         return f"{self.root}/Monitor/report"
 
+    def alarm_copy(self, service: Service | None = None) -> str:
+        """Queryable of the servo and the command service: the newest ``AlarmList`` it adopted,
+        for an alarm monitor that restarts; ``None`` gives ``/*``."""
+        return f"{self.root}/Monitor/copy/{service or '*'}"
+
     @property
     def command_settings(self) -> str:
         """``MotionSettings`` from the command service on change and at 4 Hz."""
@@ -225,6 +230,8 @@ KEY_TABLE: tuple[tuple[str, str, str, str], ...] = (
      "AlarmList, on every change and at 2 Hz"),
     ("JARA_ARM/<arm>/Monitor/report", "subscriber (internal)", "alarm-monitor",
      "AlarmReport from the services"),
+    ("JARA_ARM/<arm>/Monitor/copy/<service>", "queryable (internal)", "servo, command",
+     "the newest AlarmList the service adopted: what a restarted monitor takes over"),
     ("JARA_ARM/<arm>/Command/settings", "publisher (internal)", "command",
      "MotionSettings, on change and at 4 Hz"),
     ("JARA_ARM/<arm>/heartbeat/<service>", "publisher (internal)", "every service",

@@ -584,6 +584,28 @@ def test_command_hung_by_sigstop(arm: System):
     check_back_to_work(arm)
 
 
+def test_a_restarted_monitor_takes_the_active_alarms_over(arm: System):
+    """Monitor SIGKILL with a FAULT active: the restarted monitor lists it again; nothing moves until cleared."""
+    since = arm.mark()
+    with stopped(arm.pid(Service.PLANNER)):  # a FAULT only the monitor knows of (no servo latch)
+        arm.event(AlarmCode.PLANNER_HUNG, since)
+    check_alarm(arm, AlarmCode.PLANNER_HUNG, AlarmType.FAULT, servo_on=False)
+    mark = len(arm.proc.lines)
+    os.kill(arm.pid(Service.ALARM_MONITOR), signal.SIGKILL)
+    arm.proc.wait_for_line("died with SIGKILL; restarting", timeout=5, start=mark)
+    arm.proc.wait_for_line("arm0/alarm-monitor: alarm monitor up", timeout=20, start=mark)
+    wait_alive(arm.session, "arm0", [Service.ALARM_MONITOR], timeout=10)
+    assert any("took over 1 active alarms" in line for line in list(arm.proc.lines)[mark:]), arm.log_tail()
+    # The new monitor itself answers (not a fallback of the servo's own alarms) ...
+    listed = arm.client.raw(arm.keys.monitor_common(OP.getActiveAlarm), b"{}", json=True)
+    assert [a["code"] for a in listed["alarms"]] == [AlarmCode.PLANNER_HUNG], listed
+    check_alarm(arm, AlarmCode.PLANNER_HUNG, AlarmType.FAULT, servo_on=False)
+    # ... and the arm stays stopped by it until it is cleared.
+    assert arm.common(OP.servoON).id == ReturnCode.STATUS_ERR
+    assert arm.middle(OP.goHome).id != ReturnCode.OK
+    check_back_to_work(arm)
+
+
 def test_monitor_list_and_alarm_events_agree(arm: System):
     """The monitor's AlarmList, getActiveAlarm and the events tell one story (e-stop, then clear)."""
     lists = arm.session.declare_subscriber(arm.keys.monitor_alarms, zenoh.handlers.FifoChannel(256))

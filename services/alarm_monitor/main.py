@@ -16,7 +16,7 @@ from jara_arm.robots import RobotModel
 from jara_arm.schema.alarms import MONITOR_OPERATIONS
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.keys import Service
-from jara_arm.services.runtime.monitor_link import clear_reply
+from jara_arm.services.runtime.monitor_link import clear_reply, newest_copy
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer, ok
 from jara_arm.services.runtime.service import announce, run_service, service_session
@@ -46,6 +46,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
          realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
     with service_session(conf, arm, Service.ALARM_MONITOR) as (session, keys):
         monitor = Monitor(session, keys, robot)
+        monitor.take_over(newest_copy(session, keys))  # before its first (empty) list goes out
         monitor.start()
         server = InterfaceServer(session, keys.monitor_common(), MONITOR_OPERATIONS, MonitorCommon(monitor),
                                  "monitor-rpc")

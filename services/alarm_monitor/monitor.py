@@ -95,6 +95,20 @@ class Monitor:
         self._thread = threading.Thread(target=self._run, name="alarm-monitor", daemon=True)
 
     # -- life cycle ---------------------------------------------------------------
+    def take_over(self, held: AlarmList | None) -> None:
+        """Before :meth:`start`: the alarms an earlier monitor of this arm left active.
+
+        ``held`` is the newest list the servo and the command service hold
+        (``Monitor/copy``): a monitor restarted while the arm was stopped by a
+        FAULT keeps it listed, and ``clearAlarms`` judges its cause as usual.
+        """
+        if held is None or held.started == self.started or not held.alarms:
+            return
+        for alarm in held.alarms:
+            self.book.raise_alarm(alarm)
+        log.warning("took over %d active alarms from the previous alarm monitor: %s", len(held.alarms),
+                    ", ".join(f"{format_code(a.code)} {a.description}" for a in held.alarms))
+
     def start(self) -> None:
         self._thread.start()
 

@@ -151,6 +151,14 @@ class StateTracker:
                 self._paused = False
             self._changed()
 
+    @property
+    def monitor_list(self) -> AlarmList | None:
+        """The newest alarm list adopted from the monitor, less what was cleared without it (None before)."""
+        with self._cond:
+            if self._monitor_list is None:
+                return None
+            return dataclasses.replace(self._monitor_list, alarms=self._monitor_alarms)
+
     def forget_alarms(self) -> None:
         """clearAlarms without an alarm monitor: its (old) list no longer counts."""
         with self._cond:

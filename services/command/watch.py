@@ -20,6 +20,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.planner import PLANNER_PROGRESS
 
 from jara_arm.services.runtime.heartbeat import Pulse
+from jara_arm.services.runtime.monitor_link import AlarmListCopy
 
 from .state import StateTracker
 
@@ -44,6 +45,7 @@ class Watcher:
         self._planner = session.liveliness().declare_subscriber(
             keys.alive(Service.PLANNER), zenoh.handlers.FifoChannel(64), history=True)
         self._alarms = session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(_ALARMS_FIFO))
+        self._alarm_copy = AlarmListCopy(session, keys, Service.COMMAND)
         self._stop = threading.Event()
         self._bad = 0  # malformed messages seen (logged once per kind)
         self._thread = threading.Thread(target=self._run, name="command-watch", daemon=True)
@@ -58,6 +60,7 @@ class Watcher:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2.0)
+        self._alarm_copy.close()
         for sub in (self._status, self._progress, self._planner, self._alarms):
             try:
                 sub.undeclare()
@@ -83,6 +86,7 @@ class Watcher:
                 self._tracker.on_alarms(codec.decode_message(ALARM_LIST, s.payload.to_bytes()))
             except WireError as exc:
                 self._malformed("Monitor/alarms", exc)
+        self._alarm_copy.answer(lambda: self._tracker.monitor_list)
         while (s := self._progress.try_recv()) is not None:
             try:
                 self._tracker.on_progress(codec.decode_message(PLANNER_PROGRESS, s.payload.to_bytes()))

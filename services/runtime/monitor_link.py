@@ -5,11 +5,17 @@ servo and the command service pass ``getActiveAlarm`` and ``clearAlarms`` on
 to it, and fall back to what they know themselves when it does not answer
 within ``MONITOR_TIMEOUT`` (a missing monitor must not block the arm's
 interfaces for long).
+
+Both also keep the newest list they adopted and answer it on
+``Monitor/copy/<service>`` (:class:`AlarmListCopy`): a monitor that restarts
+takes the active alarms over from there (:func:`newest_copy`) instead of
+starting with an empty list while the arm is still stopped by them.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import zenoh
 
@@ -18,7 +24,7 @@ from jara_arm.schema.alarms import ALARM_LIST, MONITOR_OPERATIONS, AlarmList, fo
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
-from jara_arm.schema.keys import ArmKeys
+from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm
 
 from .rpc import ok, refuse
@@ -86,3 +92,51 @@ class MonitorLink:
         except WireError as exc:
             log.error("the alarm monitor sent a malformed alarm list: %s", exc)
             return None
+
+
+class AlarmListCopy:
+    """``Monitor/copy/<service>``: answers the newest ``AlarmList`` this service adopted.
+
+    Zenoh only queues the queries; the thread that owns the list answers them
+    with :meth:`answer` on its own turns (the servo loop, the command's watcher).
+    """
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, service: Service) -> None:
+        self._key = keys.alarm_copy(service)
+        self._queryable = session.declare_queryable(self._key, zenoh.handlers.FifoChannel(16))
+
+    def answer(self, current: Callable[[], AlarmList | None]) -> None:
+        """Reply ``current()`` to every pending query (None: no list adopted yet, no reply)."""
+        while (query := self._queryable.try_recv()) is not None:
+            try:
+                if (alarms := current()) is not None:
+                    query.reply(self._key, codec.encode_message(ALARM_LIST, alarms))
+            except zenoh.ZError as exc:
+                log.warning("could not answer %s: %s", self._key, exc)
+            finally:
+                query.drop()
+
+    def close(self) -> None:
+        try:
+            self._queryable.undeclare()
+        except Exception:
+            pass
+
+
+def newest_copy(session: zenoh.Session, keys: ArmKeys, timeout: float = MONITOR_TIMEOUT) -> AlarmList | None:
+    """The newest list the servo and the command service hold (see :class:`AlarmListCopy`); None if none."""
+    newest: AlarmList | None = None
+    try:
+        for reply in session.get(keys.alarm_copy(), timeout=timeout):
+            if reply.ok is None:
+                continue
+            try:
+                candidate = codec.decode_message(ALARM_LIST, reply.ok.payload.to_bytes())
+            except WireError as exc:
+                log.error("ignored a malformed alarm list copy from %s: %s", reply.ok.key_expr, exc)
+                continue
+            if is_newer(candidate, newest):
+                newest = candidate
+    except zenoh.ZError as exc:
+        log.warning("query of the alarm list copies failed: %s", exc)
+    return newest

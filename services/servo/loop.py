@@ -39,7 +39,7 @@ from jara_arm.schema.codes import AlarmCode, AlarmType, StateBit
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
-from jara_arm.services.runtime.monitor_link import is_newer
+from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
 from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.realtime import realtime_thread
 
@@ -156,6 +156,7 @@ class ServoLoop:
         self._cmd_sub = session.declare_subscriber(keys.pos_cmd, zenoh.handlers.FifoChannel(1 << 16))
         self._estop_sub = session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64))
         self._alarms_sub = session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256))
+        self._alarm_copy = AlarmListCopy(session, keys, Service.SERVO)
         self._report_pub = session.declare_publisher(keys.monitor_report, express=True)
         self._fb_pub = session.declare_publisher(keys.pos_feedback, express=True)
         self._status_pub = session.declare_publisher(keys.servo_status, express=True)
@@ -172,6 +173,7 @@ class ServoLoop:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5.0)
+        self._alarm_copy.close()
         for entity in (self._cmd_sub, self._estop_sub, self._alarms_sub, self._report_pub, self._fb_pub,
                        self._status_pub, self._health_pub):
             try:
@@ -264,6 +266,7 @@ class ServoLoop:
                 self.adopt_monitor_list(codec.decode_message(ALARM_LIST, sample.payload.to_bytes()))
             except WireError as exc:
                 log.error("ignored a malformed alarm list from the monitor: %s", exc)
+        self._alarm_copy.answer(self._alarm_list_held)
         while self._calls:
             fn, fut = self._calls.popleft()
             try:
@@ -493,6 +496,12 @@ class ServoLoop:
             if present != latch.present or (latch.acked is None and now - latch.reported_at >= REPORT_AGAIN):
                 latch.present = present
                 self._report(latch)
+
+    def _alarm_list_held(self) -> AlarmList | None:
+        """The monitor's newest list less what was cleared without it: what this servo acts on."""
+        if self._monitor_list is None:
+            return None
+        return dataclasses.replace(self._monitor_list, alarms=self.monitor_alarms)
 
     def adopt_monitor_list(self, alarms: AlarmList) -> None:
         """Follow the monitor's list: stop for what is new there, release the latches it cleared."""
