@@ -36,6 +36,8 @@ SCENARIOS = {
     "planner-stop": scenarios.test_planner_hung_by_sigstop,
     "command-kill": scenarios.test_command_killed_in_the_middle_of_a_motion,
     "command-stop": scenarios.test_command_hung_by_sigstop,
+    "monitor-kill": scenarios.test_monitor_killed_in_the_middle_of_a_motion,
+    "monitor-stop": scenarios.test_monitor_hung_by_sigstop,
 }
 
 

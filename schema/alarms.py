@@ -72,12 +72,18 @@ ALARM_TABLE: tuple[AlarmInfo, ...] = (
               "the planner service is gone (its liveliness token was deleted)"),
     AlarmInfo(AlarmCode.COMMAND_LOST, AlarmType.FAULT,
               "the command service is gone (its liveliness token was deleted)"),
+    AlarmInfo(AlarmCode.MONITOR_LOST, AlarmType.FAULT,
+              "the alarm monitor is gone (its liveliness token was deleted): detected by the servo, "
+              "listed once a monitor is back"),
     AlarmInfo(AlarmCode.SERVO_HUNG, AlarmType.FAULT,
               "the servo service hangs: token up, but its heartbeat silent or a loop of it stuck"),
     AlarmInfo(AlarmCode.PLANNER_HUNG, AlarmType.FAULT,
               "the planner service hangs: token up, but its heartbeat silent or a loop of it stuck"),
     AlarmInfo(AlarmCode.COMMAND_HUNG, AlarmType.FAULT,
               "the command service hangs: token up, but its heartbeat silent or a loop of it stuck"),
+    AlarmInfo(AlarmCode.MONITOR_HUNG, AlarmType.FAULT,
+              "the alarm monitor hangs: token up, but its heartbeat silent or a loop of it stuck: "
+              "detected by the servo"),
 )
 
 #: Alarm type of every code, from :data:`ALARM_TABLE`.

@@ -12,6 +12,8 @@ import dataclasses
 import enum
 import functools
 import json
+import math
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -140,3 +142,28 @@ def encode_message(kind: StructType, value: Any, encoding: Encoding = Encoding.M
 
 def decode_message(kind: StructType, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
     return kind.decode(loads(payload, encoding), "")
+
+
+def deadline_attachment(timeout: float) -> bytes:
+    """The attachment of a query whose requester waits ``timeout`` [s]: ``{"deadline": <wall time [s]>}``.
+
+    A service that takes the query up after its deadline (it was stopped, or
+    starved, while the query waited in its queue) drops it unanswered rather
+    than act on a request its requester already gave up on (WIRE.md leaves
+    attachments to implementations; clients may send one, or not).
+    """
+    return msgpack.packb({"deadline": time.time() + timeout}, use_bin_type=True)
+
+
+def attachment_deadline(attachment: bytes | None) -> float | None:
+    """The deadline [s, wall time] in a query's attachment; None if there is none or it is not one."""
+    if not attachment:
+        return None
+    try:
+        value = msgpack.unpackb(attachment, raw=False)
+    except Exception:
+        return None
+    deadline = value.get("deadline") if isinstance(value, dict) else None
+    if isinstance(deadline, bool) or not isinstance(deadline, (int, float)) or not math.isfinite(deadline):
+        return None
+    return float(deadline)

@@ -31,7 +31,9 @@ class AlarmCode(enum.IntEnum):
     The model-specific codes of this implementation say which service that is
     needed to move the arm failed, and how: 0x40s = its liveliness token was
     deleted (the process is gone), 0x41s = its token is still up but its
-    periodic stream went stale (the process hangs). Every one is a FAULT.
+    heartbeat went silent or names a stuck loop (the process hangs). Every one
+    is a FAULT. The alarm monitor watches the servo, the planner and the
+    command service; the servo watches the alarm monitor (0x403, 0x413).
     """
 
     EMERGENCY_STOP = 0x01
@@ -45,6 +47,8 @@ class AlarmCode(enum.IntEnum):
     SERVO_HUNG = 0x410  # token up, but its heartbeat silent, or a loop of it stuck
     PLANNER_HUNG = 0x411  # token up, but its heartbeat silent, or a loop of it stuck
     COMMAND_HUNG = 0x412  # token up, but its heartbeat silent, or a loop of it stuck
+    MONITOR_LOST = 0x403  # the alarm monitor's token was deleted (detected by the servo)
+    MONITOR_HUNG = 0x413  # the alarm monitor's token up, its heartbeat silent or stuck (servo)
 
 
 class StateBit(enum.IntFlag):

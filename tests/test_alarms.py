@@ -39,7 +39,7 @@ from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
-from jara_arm.services.alarm_monitor.detectors import HUNG_AFTER
+from jara_arm.services.runtime.heartbeat import HUNG_AFTER
 from jara_arm.services.planner.kinematics import Kinematics
 from jara_arm.services.servo.loop import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
@@ -584,6 +584,29 @@ def test_command_hung_by_sigstop(arm: System):
     check_back_to_work(arm)
 
 
+def restart_monitor(arm: System) -> float:
+    """SIGKILL the alarm monitor and wait until the launcher's new one is up; the time of the kill [s]."""
+    mark = len(arm.proc.lines)
+    cause = time.time()
+    os.kill(arm.pid(Service.ALARM_MONITOR), signal.SIGKILL)
+    arm.proc.wait_for_line("died with SIGKILL; restarting", timeout=5, start=mark)
+    arm.proc.wait_for_line("arm0/alarm-monitor: alarm monitor up", timeout=20, start=mark)
+    wait_alive(arm.session, "arm0", [Service.ALARM_MONITOR], timeout=10)
+    return cause
+
+
+def servo_alarm_latency(arm: System, name: str, cause: float) -> None:
+    """Poll the servo's state until bit 0x04 shows (no monitor to publish an event); record the latency."""
+    wait_until(lambda: arm.servo(OP.getState)["state"] & StateBit.ALARM, 2.0, 0.001, "the servo's bit 0x04")
+    latency(name, cause, time.time())
+
+
+def monitor_lists(arm: System) -> set[int]:
+    """The codes the alarm monitor itself answers (not a fallback of the servo's own alarms)."""
+    listed = arm.client.raw(arm.keys.monitor_common(OP.getActiveAlarm), b"{}", json=True)
+    return {a["code"] for a in listed["alarms"]}
+
+
 def test_a_restarted_monitor_takes_the_active_alarms_over(arm: System):
     """Monitor SIGKILL with a FAULT active: the restarted monitor lists it again; nothing moves until cleared."""
     since = arm.mark()
@@ -591,18 +614,55 @@ def test_a_restarted_monitor_takes_the_active_alarms_over(arm: System):
         arm.event(AlarmCode.PLANNER_HUNG, since)
     check_alarm(arm, AlarmCode.PLANNER_HUNG, AlarmType.FAULT, servo_on=False)
     mark = len(arm.proc.lines)
-    os.kill(arm.pid(Service.ALARM_MONITOR), signal.SIGKILL)
-    arm.proc.wait_for_line("died with SIGKILL; restarting", timeout=5, start=mark)
-    arm.proc.wait_for_line("arm0/alarm-monitor: alarm monitor up", timeout=20, start=mark)
-    wait_alive(arm.session, "arm0", [Service.ALARM_MONITOR], timeout=10)
+    restart_monitor(arm)
     assert any("took over 1 active alarms" in line for line in list(arm.proc.lines)[mark:]), arm.log_tail()
-    # The new monitor itself answers (not a fallback of the servo's own alarms) ...
-    listed = arm.client.raw(arm.keys.monitor_common(OP.getActiveAlarm), b"{}", json=True)
-    assert [a["code"] for a in listed["alarms"]] == [AlarmCode.PLANNER_HUNG], listed
+    # The new monitor lists it, and the servo's report of the monitor's loss as well.
+    wait_until(lambda: monitor_lists(arm) == {AlarmCode.PLANNER_HUNG, AlarmCode.MONITOR_LOST}, 2.0,
+               what="0x411 and 0x403 listed by the new monitor")
     check_alarm(arm, AlarmCode.PLANNER_HUNG, AlarmType.FAULT, servo_on=False)
-    # ... and the arm stays stopped by it until it is cleared.
+    # The arm stays stopped until they are cleared.
     assert arm.common(OP.servoON).id == ReturnCode.STATUS_ERR
     assert arm.middle(OP.goHome).id != ReturnCode.OK
+    check_back_to_work(arm)
+
+
+def test_monitor_killed_in_the_middle_of_a_motion(arm: System):
+    """Monitor SIGKILL: the servo stops the arm and goes off (0x403); the new monitor lists it; back to work."""
+    since = start_long_motion(arm)
+    mark = len(arm.proc.lines)
+    cause = time.time()
+    os.kill(arm.pid(Service.ALARM_MONITOR), signal.SIGKILL)
+    servo_alarm_latency(arm, "alarm-monitor SIGKILL (servo's state)", cause)
+    assert [a.code for a in arm.servo(OP.getActiveAlarm)["alarms"]] == [AlarmCode.MONITOR_LOST]
+    arm.proc.wait_for_line("arm0/alarm-monitor: alarm monitor up", timeout=20, start=mark)
+    wait_alive(arm.session, "arm0", [Service.ALARM_MONITOR], timeout=10)
+    _, event = arm.event(AlarmCode.MONITOR_LOST, since)  # raised by the new monitor on the servo's report
+    assert event.alarm.type is AlarmType.FAULT and "alarm monitor is gone" in event.alarm.description
+    check_alarm(arm, AlarmCode.MONITOR_LOST, AlarmType.FAULT, servo_on=False)
+    check_queue_discarded(arm)
+    check_no_jump(arm, since=cause)
+    check_back_to_work(arm)
+
+
+def test_monitor_hung_by_sigstop(arm: System):
+    """Monitor SIGSTOP mid-motion: the servo stops the arm (0x413) and keeps it; listed after SIGCONT."""
+    since = start_long_motion(arm)
+    mark = len(arm.proc.lines)
+    cause = time.time()
+    with stopped(arm.pid(Service.ALARM_MONITOR)):
+        servo_alarm_latency(arm, f"alarm-monitor SIGSTOP (servo's state; threshold {HUNG_AFTER * 1e3:.0f} ms)",
+                            cause)
+        reply = arm.servo(OP.getActiveAlarm)  # the monitor does not answer: the servo's own, said so
+        assert [a.code for a in reply["alarms"]] == [AlarmCode.MONITOR_HUNG] and "monitor" in reply.comment
+        kept = arm.servo(OP.clearAlarms)
+        assert kept.id == ReturnCode.STATUS_ERR and "0x413" in kept.comment, kept
+        assert not arm.servo(OP.getState)["state"] & StateBit.SERVO_ON
+    arm.event(AlarmCode.MONITOR_HUNG, since)  # the monitor, back, lists the servo's report
+    # ... and does not act on the clearAlarms the servo forwarded while it was stopped.
+    arm.proc.wait_for_line("Monitor/Common/clearAlarms unanswered: its requester gave up", timeout=2, start=mark)
+    check_alarm(arm, AlarmCode.MONITOR_HUNG, AlarmType.FAULT, servo_on=False)
+    check_queue_discarded(arm)
+    check_no_jump(arm, since=cause)
     check_back_to_work(arm)
 
 
@@ -675,8 +735,7 @@ def test_rating_debounce_and_crossing():
 
 
 def test_service_watch_lost_stale_and_stuck():
-    from jara_arm.services.alarm_monitor.detectors import (ALL_SILENT_AFTER, CORROBORATE, ServiceWatch,
-                                                           corroborated)
+    from jara_arm.services.runtime.heartbeat import ALL_SILENT_AFTER, CORROBORATE, ServiceWatch, corroborated
 
     watch = ServiceWatch(Service.SERVO, stale_after=0.05)
     assert not watch.token(True, now=10.0) and not watch.stale(10.04)

@@ -255,7 +255,20 @@ def test_alarm_table_covers_every_code_with_its_decided_type():
     from jara_arm.schema.codes import AlarmCode
     assert {a.code for a in alarms.ALARM_TABLE} == set(AlarmCode)
     faults = {c for c, t in alarms.ALARM_TYPE.items() if t is AlarmType.FAULT}
-    assert faults == {0x01, 0x03, 0x400, 0x401, 0x402, 0x410, 0x411, 0x412}
+    assert faults == {0x01, 0x03, 0x400, 0x401, 0x402, 0x403, 0x410, 0x411, 0x412, 0x413}
     assert all(c >= 0x400 for c in AlarmCode if c > 0x05)  # model-specific codes where the spec says
     assert set(alarms.MONITOR_OPERATIONS) == {"getActiveAlarm", "clearAlarms"}
     assert alarms.format_code(1) == "0x01" and alarms.format_code(0x410) == "0x410"
+
+
+def test_query_deadline_attachment():
+    """A forwarded query carries its requester's deadline; anything else is no deadline, never an error."""
+    import time
+
+    before = time.time()
+    deadline = codec.attachment_deadline(codec.deadline_attachment(0.3))
+    assert deadline is not None and before + 0.3 <= deadline <= time.time() + 0.3
+    for junk in (None, b"", b"\xc1", msgpack.packb([1.0]), msgpack.packb({"deadline": "soon"}),
+                 msgpack.packb({"deadline": True}), msgpack.packb({"deadline": float("nan")}),
+                 msgpack.packb({"other": 1.0})):
+        assert codec.attachment_deadline(junk) is None

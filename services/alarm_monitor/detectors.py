@@ -27,7 +27,7 @@ Thresholds and margins (the README's "Alarms" table repeats them):
   token is back (the launcher restarts the process).
 * hung (0x410-0x412, FAULT): the token is up, but the service's heartbeat
   (``heartbeat/<service>``, every 5 ms from a real-time thread) has been
-  silent for longer than ``HUNG_AFTER`` (a process stopped or starved of the
+  silent for longer than ``HUNG_AFTER`` (``services/runtime/heartbeat.py``: a process stopped or starved of the
   CPU), or the heartbeat names a working loop of the service that missed its
   deadline (``stuck``). Silence counts only while some other service's
   heartbeat arrived within ``CORROBORATE``: that shows the way from the
@@ -39,7 +39,6 @@ Thresholds and margins (the README's "Alarms" table repeats them):
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -60,14 +59,6 @@ OVERSPEED_SAMPLES = 2
 JOINT_LIMIT_TOLERANCE = 5e-3
 #: The control point beyond the Cartesian soft limit by more than this has crossed it [m].
 CARTESIAN_LIMIT_TOLERANCE = 1e-3
-#: A service whose heartbeat has been silent this long while its token is up hangs [s]:
-#: six heartbeat periods, so that detection stays within 50 ms of the cause (at most
-#: 30 ms + one monitor poll + the transport) while five lost beats in a row are tolerated.
-HUNG_AFTER = 0.03
-#: ... provided another service's heartbeat arrived this recently [s] (three periods).
-CORROBORATE = 0.015
-#: Every heartbeat silent at once: each service hangs after this long [s].
-ALL_SILENT_AFTER = 0.5
 LOST_CODE: dict[Service, AlarmCode] = {
     Service.SERVO: AlarmCode.SERVO_LOST,
     Service.PLANNER: AlarmCode.PLANNER_LOST,
@@ -142,47 +133,3 @@ class Crossing:
 
     def limit(self, axis: int) -> LimitValue:
         return LimitValue(float(self._upper[axis]), float(self._lower[axis]))
-
-
-@dataclasses.dataclass
-class ServiceWatch:
-    """Liveliness and heartbeat of one service that is needed to move the arm."""
-
-    service: Service
-    stale_after: float = HUNG_AFTER  # [s]
-    alive: bool = False
-    up_at: float = -float("inf")  # [s] monotonic time its token appeared
-    heard_at: float = -float("inf")  # [s] monotonic time of its newest heartbeat
-    stuck: tuple[str, ...] = ()  # the newest heartbeat's stuck loops
-
-    def token(self, up: bool, now: float) -> bool:
-        """A liveliness change; True if the service was alive and is now gone."""
-        was = self.alive
-        self.alive = up
-        if up and not was:
-            self.up_at = now
-            self.stuck = ()
-        return was and not up
-
-    def heard(self, now: float, stuck: tuple[str, ...] = ()) -> None:
-        self.heard_at = now
-        self.stuck = stuck
-
-    def silence(self, now: float) -> float:
-        """[s] since the newest heartbeat (or since the token appeared, if later)."""
-        return now - max(self.heard_at, self.up_at)
-
-    def stale(self, now: float, corroborated: bool = True) -> bool:
-        """Token up, heartbeat silent for longer than ``stale_after`` (``ALL_SILENT_AFTER`` if
-        nothing shows that the heartbeat could have come)."""
-        limit = self.stale_after if corroborated else max(self.stale_after, ALL_SILENT_AFTER)
-        return self.alive and self.silence(now) > limit
-
-    def hung(self, now: float, corroborated: bool = True) -> bool:
-        """Silent (see :meth:`stale`), or a loop of it stuck."""
-        return self.alive and (bool(self.stuck) or self.stale(now, corroborated))
-
-
-def corroborated(watches: Sequence[ServiceWatch], service: Service, now: float) -> bool:
-    """Whether another watched service's heartbeat arrived within ``CORROBORATE`` of ``now``."""
-    return any(now - w.heard_at <= CORROBORATE for w in watches if w.service != service and w.alive)

@@ -16,12 +16,13 @@ from jara_arm.robots import RobotModel
 from jara_arm.schema.alarms import MONITOR_OPERATIONS
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.keys import Service
+from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import clear_reply, newest_copy
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer, ok
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
-from .monitor import Monitor
+from .monitor import LOOP_DEADLINE, Monitor
 
 log = logging.getLogger("jara_arm.alarm_monitor")
 
@@ -45,9 +46,11 @@ class MonitorCommon:
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
          realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
     with service_session(conf, arm, Service.ALARM_MONITOR) as (session, keys):
-        monitor = Monitor(session, keys, robot)
+        heartbeat = Heartbeat(session, keys, Service.ALARM_MONITOR, realtime_priority)
+        monitor = Monitor(session, keys, robot, heartbeat.pulse("the alarm monitor loop", LOOP_DEADLINE))
         monitor.take_over(newest_copy(session, keys))  # before its first (empty) list goes out
         monitor.start()
+        heartbeat.start()
         server = InterfaceServer(session, keys.monitor_common(), MONITOR_OPERATIONS, MonitorCommon(monitor),
                                  "monitor-rpc")
         # Every thread of the process (Zenoh's that bring the samples in, too): an alarm
@@ -61,6 +64,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                     raise RuntimeError("the alarm monitor thread died")
         finally:
             token.undeclare()
+            heartbeat.close()
             server.close()
             monitor.stop()
             log.info("alarm monitor down")

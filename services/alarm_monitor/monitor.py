@@ -31,11 +31,12 @@ from jara_arm.schema.keys import ArmKeys, Service, parse_alive, parse_heartbeat
 from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
 from jara_arm.services.planner.kinematics import Kinematics, hg_to_se3
+from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch, corroborated
 
 from .book import AlarmBook
 from .detectors import (CARTESIAN_LIMIT_TOLERANCE, HUNG_CODE, JOINT_LIMIT_TOLERANCE, LOST_CODE,
                         OVERLOAD_MARGIN, OVERLOAD_SAMPLES, OVERSPEED_MARGIN, OVERSPEED_SAMPLES, AboveRating,
-                        Crossing, ServiceWatch, corroborated)
+                        Crossing)
 from .reactions import Reactions
 
 log = logging.getLogger(__name__)
@@ -46,6 +47,8 @@ LIST_PERIOD = 0.5  #: [s] the AlarmList is published at least this often (2 Hz)
 #: A monitor loop that itself paused this long [s] waits as long before judging staleness,
 #: so that its own hiccup (the messages still in Zenoh's queues) never reads as a hung service.
 SELF_STALL = 0.02
+#: The loop not turning for this long is a stuck monitor (its heartbeat says so; the servo watches) [s].
+LOOP_DEADLINE = 0.1
 _STALL_LOG_EVERY = 10.0  #: [s] at most one warning about the monitor's own pauses this often
 _AXES = "XYZ"
 
@@ -53,8 +56,10 @@ _AXES = "XYZ"
 class Monitor:
     """Owner of one arm's active alarms (see the module docstring)."""
 
-    def __init__(self, session: zenoh.Session, keys: ArmKeys, robot: RobotModel) -> None:
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, robot: RobotModel,
+                 pulse: Pulse | None = None) -> None:
         self.robot = robot
+        self._pulse = pulse or Pulse("the alarm monitor loop", LOOP_DEADLINE)
         self.keys = keys
         self.started = Time.now()
         self.book = AlarmBook()
@@ -138,6 +143,7 @@ class Monitor:
         last = time.monotonic()
         stall_logged = -float("inf")
         while not self._stop.wait(POLL_PERIOD):
+            self._pulse.beat()
             now = time.monotonic()
             if now - last > SELF_STALL:
                 if now - stall_logged >= _STALL_LOG_EVERY:

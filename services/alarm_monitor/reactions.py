@@ -58,7 +58,8 @@ class _Worker:
             try:
                 answered = False
                 start = time.monotonic()
-                for reply in self._session.get(key, payload=payload, timeout=REACTION_TIMEOUT):
+                for reply in self._session.get(key, payload=payload, timeout=REACTION_TIMEOUT,
+                                                  attachment=codec.deadline_attachment(REACTION_TIMEOUT)):
                     if reply.ok is not None:
                         body = codec.loads(reply.ok.payload.to_bytes())
                         answered = True

@@ -48,7 +48,8 @@ class _Peer:
         """The reply payload and its encoding, or an NG reply saying that nobody answered."""
         start = time.monotonic()
         try:
-            for reply in self._session.get(key, payload=payload, timeout=timeout):
+            for reply in self._session.get(key, payload=payload, timeout=timeout,
+                                              attachment=codec.deadline_attachment(timeout)):
                 if reply.ok is not None:
                     return reply.ok.payload.to_bytes(), Encoding.of(reply.ok.encoding)
                 log.warning("%s answered %s with an error: %s", self.service.value, key, reply.err)

@@ -46,6 +46,7 @@ from jara_arm.schema.planner import (
 )
 from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.realtime import realtime_process
+from jara_arm.services.runtime.rpc import expired
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
 from .planning import PlanRefused
@@ -78,6 +79,10 @@ def _worker(queryable: zenoh.Queryable, key: str, handle: Callable[[bytes, Encod
             except Exception:  # the session closed: shutting down
                 return
             try:
+                if (late := expired(query)) is not None:
+                    log.warning("dropped %s unanswered: its requester gave up %.0f ms ago (the planner "
+                                "was held up, or the clocks differ)", query.key_expr, late * 1e3)
+                    continue
                 encoding = Encoding.of(query.encoding)
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 query.reply(key, handle(payload, encoding), encoding=_ZENOH_ENCODING[encoding])

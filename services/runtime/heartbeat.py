@@ -6,7 +6,8 @@ silent within a few periods while its token stays up. It also shows that the
 process's working loops turn: each loop takes a :class:`Pulse` and beats it
 on every turn, and a loop that has not beaten within its deadline is named in
 the heartbeat's ``stuck`` lines. The alarm monitor raises the service's hung
-FAULT (0x410-0x412) on either (``services/alarm_monitor/detectors.py``).
+FAULT (0x410-0x412) on either; :class:`ServiceWatch` is how a watcher judges
+one service by its liveliness token and its heartbeat.
 
 The thread runs at real-time priority where the process may: a heartbeat
 that is late because the machine is busy would read as a hung service.
@@ -14,10 +15,12 @@ that is late because the machine is busy would read as a hung service.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import threading
 import time
+from collections.abc import Sequence
 
 import zenoh
 
@@ -30,6 +33,15 @@ from jara_arm.schema.keys import ArmKeys, Service
 from .realtime import realtime_thread
 
 log = logging.getLogger(__name__)
+
+#: A service whose heartbeat has been silent this long while its token is up hangs [s]:
+#: six heartbeat periods, so that detection stays within 50 ms of the cause (at most
+#: 30 ms + one monitor poll + the transport) while five lost beats in a row are tolerated.
+HUNG_AFTER = 0.03
+#: ... provided another service's heartbeat arrived this recently [s] (three periods).
+CORROBORATE = 0.015
+#: Every heartbeat silent at once: each service hangs after this long [s].
+ALL_SILENT_AFTER = 0.5
 
 #: The heartbeat thread itself held up this long [s] (the whole process or machine
 #: stalled): a loop's silence over that time says nothing about the loop.
@@ -118,3 +130,47 @@ class Heartbeat:
                 if seq % 1000 == 0:
                     log.exception("heartbeat %d failed", seq)
             seq = (seq + 1) % (ULONG_MAX + 1)
+
+
+@dataclasses.dataclass
+class ServiceWatch:
+    """Liveliness and heartbeat of one service that is needed to move the arm."""
+
+    service: Service
+    stale_after: float = HUNG_AFTER  # [s]
+    alive: bool = False
+    up_at: float = -float("inf")  # [s] monotonic time its token appeared
+    heard_at: float = -float("inf")  # [s] monotonic time of its newest heartbeat
+    stuck: tuple[str, ...] = ()  # the newest heartbeat's stuck loops
+
+    def token(self, up: bool, now: float) -> bool:
+        """A liveliness change; True if the service was alive and is now gone."""
+        was = self.alive
+        self.alive = up
+        if up and not was:
+            self.up_at = now
+            self.stuck = ()
+        return was and not up
+
+    def heard(self, now: float, stuck: tuple[str, ...] = ()) -> None:
+        self.heard_at = now
+        self.stuck = stuck
+
+    def silence(self, now: float) -> float:
+        """[s] since the newest heartbeat (or since the token appeared, if later)."""
+        return now - max(self.heard_at, self.up_at)
+
+    def stale(self, now: float, corroborated: bool = True) -> bool:
+        """Token up, heartbeat silent for longer than ``stale_after`` (``ALL_SILENT_AFTER`` if
+        nothing shows that the heartbeat could have come)."""
+        limit = self.stale_after if corroborated else max(self.stale_after, ALL_SILENT_AFTER)
+        return self.alive and self.silence(now) > limit
+
+    def hung(self, now: float, corroborated: bool = True) -> bool:
+        """Silent (see :meth:`stale`), or a loop of it stuck."""
+        return self.alive and (bool(self.stuck) or self.stale(now, corroborated))
+
+
+def corroborated(watches: Sequence[ServiceWatch], service: Service, now: float) -> bool:
+    """Whether another watched service's heartbeat arrived within ``CORROBORATE`` of ``now``."""
+    return any(now - w.heard_at <= CORROBORATE for w in watches if w.service != service and w.alive)

@@ -62,7 +62,8 @@ class MonitorLink:
 
     def _get(self, key: str, payload: bytes) -> tuple[bytes, Encoding] | None:
         try:
-            for reply in self._session.get(key, payload=payload, timeout=self.timeout):
+            for reply in self._session.get(key, payload=payload, timeout=self.timeout,
+                                              attachment=codec.deadline_attachment(self.timeout)):
                 if reply.ok is not None:
                     return reply.ok.payload.to_bytes(), Encoding.of(reply.ok.encoding)
         except zenoh.ZError as exc:

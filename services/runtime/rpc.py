@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -28,6 +29,23 @@ log = logging.getLogger(__name__)
 _ZENOH_ENCODING = {Encoding.JSON: zenoh.Encoding.APPLICATION_JSON,
                    Encoding.MSGPACK: zenoh.Encoding("application/msgpack")}
 _CHANNEL_CAPACITY = 1024
+#: A query is dropped once its requester's deadline passed by this much [s] (absorbs clock skew between hosts).
+DEADLINE_GRACE = 0.05
+
+
+def expired(query: zenoh.Query) -> float | None:
+    """[s] since the requester gave up on ``query`` (its attachment's deadline), or None if it still waits.
+
+    Dropping such a query keeps a service that was held up (SIGSTOP, a stall)
+    from acting late on requests already answered by a timeout or a fallback:
+    a servoON, a motion or a clearAlarms nobody waits for any more.
+    """
+    attachment = query.attachment
+    deadline = codec.attachment_deadline(attachment.to_bytes() if attachment is not None else None)
+    if deadline is None:
+        return None
+    late = time.time() - deadline
+    return late if late > DEADLINE_GRACE else None
 
 
 def ok(comment: str = "OK", **outs: Any) -> Reply:
@@ -78,6 +96,10 @@ class InterfaceServer:
             except Exception:  # the queryable was undeclared: we are shutting down
                 return
             try:
+                if (late := expired(query)) is not None:
+                    log.warning("dropped %s unanswered: its requester gave up %.0f ms ago (this service was "
+                                "held up, or the clocks differ)", query.key_expr, late * 1e3)
+                    continue
                 self._reply(query)
             except Exception:
                 log.exception("could not reply to %s", query.key_expr)

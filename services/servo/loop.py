@@ -34,13 +34,13 @@ import zenoh
 from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
-from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmList, AlarmReport, format_code
+from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, HEARTBEAT, AlarmList, AlarmReport, format_code
 from jara_arm.schema.codes import AlarmCode, AlarmType, StateBit
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
-from jara_arm.services.runtime.heartbeat import Pulse
+from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.realtime import realtime_thread
 
 from .braking import Braking, Glide
@@ -85,6 +85,8 @@ GIL_SWITCH_INTERVAL = 0.0005
 #: A latch the alarm monitor has not listed yet is reported again this often [s]
 #: (the monitor was down or restarted and lost it).
 REPORT_AGAIN = 0.5
+#: The servo loop itself held up this long [s] waits as long before it judges the monitor's silence.
+SELF_STALL = 0.02
 #: After a stop for an alarm, a target this far from the measured joints means the
 #: arm is blocked (an obstacle): the servo then holds it where it is, not pushing on [rad or m].
 RELAX_TOLERANCE = 0.01
@@ -157,6 +159,15 @@ class ServoLoop:
         self._estop_sub = session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64))
         self._alarms_sub = session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256))
         self._alarm_copy = AlarmListCopy(session, keys, Service.SERVO)
+        # The servo watches the alarm monitor (nobody else can): without it nothing watches
+        # overload, overspeed, the Cartesian box or the other services.
+        self._monitor_token = session.liveliness().declare_subscriber(
+            keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True)
+        self._monitor_beats = session.declare_subscriber(keys.heartbeat(Service.ALARM_MONITOR),
+                                                         zenoh.handlers.RingChannel(1))
+        self._monitor_watch = ServiceWatch(Service.ALARM_MONITOR)
+        self._watched_at = time.monotonic()  # [s] the previous _watch_monitor
+        self._judge_monitor_after = 0.0  # [s] monotonic: the monitor's silence counts from then on
         self._report_pub = session.declare_publisher(keys.monitor_report, express=True)
         self._fb_pub = session.declare_publisher(keys.pos_feedback, express=True)
         self._status_pub = session.declare_publisher(keys.servo_status, express=True)
@@ -174,7 +185,8 @@ class ServoLoop:
         self._stop.set()
         self._thread.join(timeout=5.0)
         self._alarm_copy.close()
-        for entity in (self._cmd_sub, self._estop_sub, self._alarms_sub, self._report_pub, self._fb_pub,
+        for entity in (self._monitor_token, self._monitor_beats, self._cmd_sub, self._estop_sub,
+                       self._alarms_sub, self._report_pub, self._fb_pub,
                        self._status_pub, self._health_pub):
             try:
                 entity.undeclare()
@@ -267,6 +279,7 @@ class ServoLoop:
             except WireError as exc:
                 log.error("ignored a malformed alarm list from the monitor: %s", exc)
         self._alarm_copy.answer(self._alarm_list_held)
+        self._watch_monitor()
         while self._calls:
             fn, fut = self._calls.popleft()
             try:
@@ -566,10 +579,37 @@ class ServoLoop:
                 log.info("alarm %s cleared", format_code(code))
         return cleared, kept
 
+    def _watch_monitor(self) -> None:
+        """The alarm monitor's token and heartbeat: 0x403 when it is gone, 0x413 when it hangs."""
+        now = time.monotonic()
+        if now - self._watched_at > SELF_STALL:  # this loop was held up: the silence is not the monitor's
+            self._judge_monitor_after = now + SELF_STALL
+        self._watched_at = now
+        watch = self._monitor_watch
+        while (sample := self._monitor_token.try_recv()) is not None:
+            if watch.token(sample.kind == zenoh.SampleKind.PUT, now):
+                self._raise(AlarmCode.MONITOR_LOST, AlarmType.FAULT, "the alarm monitor is gone: its "
+                            "liveliness token was deleted (process ended or unreachable)")
+        if (sample := self._monitor_beats.try_recv()) is not None:
+            try:
+                watch.heard(now, codec.decode_message(HEARTBEAT, sample.payload.to_bytes()).stuck)
+            except WireError as exc:
+                log.error("ignored a malformed heartbeat of the alarm monitor: %s", exc)
+        if (now >= self._judge_monitor_after and AlarmCode.MONITOR_HUNG not in self.latches
+                and watch.hung(now)):
+            why = "; ".join(watch.stuck) or (f"no heartbeat for {watch.silence(now) * 1e3:.0f} ms (threshold "
+                                             f"{watch.stale_after * 1e3:.0f} ms)")
+            self._raise(AlarmCode.MONITOR_HUNG, AlarmType.FAULT,
+                        f"the alarm monitor hangs while its liveliness token is up: {why}")
+
     def _cause_present(self, code: int) -> bool:
         """Whether the cause of the servo's own alarm ``code`` is still there (the arm still stopping, too)."""
         if self._braking is not None:
             return True
+        if code == AlarmCode.MONITOR_LOST:
+            return not self._monitor_watch.alive
+        if code == AlarmCode.MONITOR_HUNG:
+            return self._monitor_watch.hung(time.monotonic())
         if code == AlarmCode.SOFT_LIMIT_JOINT:
             return any(not lim.lower - LIMIT_TOLERANCE <= q <= lim.upper + LIMIT_TOLERANCE
                        for q, lim in zip(self.fb_pos, self.soft_limits))
