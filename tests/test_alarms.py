@@ -657,6 +657,7 @@ def test_monitor_hung_by_sigstop(arm: System):
         kept = arm.servo(OP.clearAlarms)
         assert kept.id == ReturnCode.STATUS_ERR and "0x413" in kept.comment, kept
         assert not arm.servo(OP.getState)["state"] & StateBit.SERVO_ON
+        time.sleep(0.5)  # the forwarded clearAlarms' deadline passes while it waits in the monitor's queue
     arm.event(AlarmCode.MONITOR_HUNG, since)  # the monitor, back, lists the servo's report
     # ... and does not act on the clearAlarms the servo forwarded while it was stopped.
     arm.proc.wait_for_line("Monitor/Common/clearAlarms unanswered: its requester gave up", timeout=2, start=mark)
