@@ -149,8 +149,9 @@ def deadline_attachment(timeout: float) -> bytes:
 
     A service that takes the query up after its deadline (it was stopped, or
     starved, while the query waited in its queue) drops it unanswered rather
-    than act on a request its requester already gave up on (WIRE.md leaves
-    attachments to implementations; clients may send one, or not).
+    than act on a request its requester already gave up on. WIRE.md does not
+    speak of attachments: this one is ours, used between our services; a
+    query without it is always answered.
     """
     return msgpack.packb({"deadline": time.time() + timeout}, use_bin_type=True)
 
