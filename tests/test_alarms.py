@@ -41,7 +41,7 @@ from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
 from jara_arm.services.runtime.heartbeat import HUNG_AFTER
 from jara_arm.services.planner.kinematics import Kinematics
-from jara_arm.services.servo.loop import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
+from jara_arm.services.servo.loop import LIMIT_STOP_ACCEL, MONITOR_HUNG_AFTER, OVERSPEED_MARGIN
 
 from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
 
@@ -493,7 +493,7 @@ def start_long_motion(arm: System) -> int:
     arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.3,) + (0.0,) * (N - 1)}))
     since = arm.mark()
     time.sleep(0.5)
-    assert arm.state() & StateBit.MOVING
+    assert arm.state() & StateBit.MOVING, f"{arm.common(OP.getActiveAlarm)}\n{arm.log_tail()}"
     return since
 
 
@@ -650,8 +650,8 @@ def test_monitor_hung_by_sigstop(arm: System):
     mark = len(arm.proc.lines)
     cause = time.time()
     with stopped(arm.pid(Service.ALARM_MONITOR)):
-        servo_alarm_latency(arm, f"alarm-monitor SIGSTOP (servo's state; threshold {HUNG_AFTER * 1e3:.0f} ms)",
-                            cause)
+        servo_alarm_latency(arm, "alarm-monitor SIGSTOP (servo's state; threshold "
+                            f"{MONITOR_HUNG_AFTER * 1e3:.0f} ms)", cause)
         reply = arm.servo(OP.getActiveAlarm)  # the monitor does not answer: the servo's own, said so
         assert [a.code for a in reply["alarms"]] == [AlarmCode.MONITOR_HUNG] and "monitor" in reply.comment
         kept = arm.servo(OP.clearAlarms)

@@ -87,6 +87,9 @@ GIL_SWITCH_INTERVAL = 0.0005
 REPORT_AGAIN = 0.5
 #: The servo loop itself held up this long [s] waits as long before it judges the monitor's silence.
 SELF_STALL = 0.02
+#: The alarm monitor's heartbeat silent this long is 0x413 [s]. Longer than the monitor's own
+#: HUNG_AFTER: the servo has no other service's beats to show the silence is the monitor's own.
+MONITOR_HUNG_AFTER = 0.05
 #: After a stop for an alarm, a target this far from the measured joints means the
 #: arm is blocked (an obstacle): the servo then holds it where it is, not pushing on [rad or m].
 RELAX_TOLERANCE = 0.01
@@ -165,7 +168,7 @@ class ServoLoop:
             keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True)
         self._monitor_beats = session.declare_subscriber(keys.heartbeat(Service.ALARM_MONITOR),
                                                          zenoh.handlers.RingChannel(1))
-        self._monitor_watch = ServiceWatch(Service.ALARM_MONITOR)
+        self._monitor_watch = ServiceWatch(Service.ALARM_MONITOR, stale_after=MONITOR_HUNG_AFTER)
         self._watched_at = time.monotonic()  # [s] the previous _watch_monitor
         self._judge_monitor_after = 0.0  # [s] monotonic: the monitor's silence counts from then on
         self._report_pub = session.declare_publisher(keys.monitor_report, express=True)
