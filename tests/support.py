@@ -137,15 +137,20 @@ class Client(ArmClient):
         return codec.loads(oks[0].payload.to_bytes(), Encoding.JSON if json else Encoding.MSGPACK)
 
 
-def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: str = "condition"):
-    """Poll ``predicate`` until it returns a truthy value, which is returned."""
+def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: str = "condition",
+               explain=None):
+    """Poll ``predicate`` until it returns a truthy value, which is returned.
+
+    On timeout ``explain()`` (if given) adds what the system looked like.
+    """
     deadline = time.monotonic() + timeout
     while True:
         value = predicate()
         if value:
             return value
         if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+            extra = f"\n{explain()}" if explain is not None else ""
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}{extra}")
         time.sleep(interval)
 
 

@@ -282,7 +282,12 @@ def check_alarm(arm: System, code: AlarmCode, kind: AlarmType, servo_on: bool) -
         states = (arm.state(), arm.servo(OP.getState)["state"])
         return all(st & StateBit.ALARM and bool(st & StateBit.SERVO_ON) == servo_on for st in states)
 
-    wait_until(reacted, 1.0, what=f"bit 0x04 set and servo {'on' if servo_on else 'off'} on both levels")
+    def explain() -> str:
+        return (f"command state {arm.state():#x}, servo state {arm.servo(OP.getState)['state']:#x}\n"
+                f"{arm.common(OP.getActiveAlarm)}\n{arm.log_tail()}")
+
+    wait_until(reacted, 1.0, what=f"bit 0x04 set and servo {'on' if servo_on else 'off'} on both levels",
+               explain=explain)
 
 
 def check_no_jump(arm: System, since: float = 0.0, allowed: np.ndarray = ACC_ALLOWED) -> np.ndarray:

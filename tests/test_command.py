@@ -12,6 +12,7 @@ Two rigs share one in-process Zenoh router, each started once for the module:
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import math
 import sys
@@ -667,8 +668,17 @@ def test_pause_resume_and_planner_edges(fake):
     peers.progress(running=motion, queued=(motion,), paused=False)  # published before the pause
     time.sleep(0.1)
     assert rig.state() & StateBit.PAUSED
+    peers.progress(running=motion, queued=(motion,), paused=True)  # the planner agrees
     rig.ok(Interface.MIDDLE, OP.resume)
     assert peers.controls == ["pause", "resume"] and not rig.state() & StateBit.PAUSED
+    peers.progress(running=motion, queued=(motion,), paused=True)  # published before the resume
+    time.sleep(0.1)
+    assert not rig.state() & StateBit.PAUSED
+    peers.progress(running=motion, queued=(motion,), paused=False)
+    peers.progress(running=motion, queued=(motion,), paused=True)  # a change of its own: an edge
+    wait_until(lambda: rig.state() & StateBit.PAUSED, 2, what="the planner's own pause adopted")
+    peers.progress(running=motion, queued=(motion,), paused=False)
+    wait_until(lambda: not rig.state() & StateBit.PAUSED, 2, what="the planner's own resume adopted")
     peers.progress(last_done=motion)
     wait_until(lambda: rig.state() == StateBit.SERVO_ON, 2, what="queue empty after lastDone")
     # servoOFF aborts the planner.
@@ -783,3 +793,24 @@ def test_motion_queue_keeps_what_progress_does_not_prove_finished():
     q.add(9)
     q.update(progress(discarded=7))
     assert q.ids == (9,)
+
+
+def test_own_pause_waits_for_the_planner_to_agree_but_not_forever(monkeypatch):
+    from jara_arm.services.command import state as state_module
+    from jara_arm.services.command.queue import MotionQueue
+
+    monkeypatch.setattr(state_module, "CONFIRM_TIMEOUT", 0.05)
+    tracker = state_module.StateTracker(MotionQueue(capacity=4), publish=lambda view: None)
+    running = dataclasses.replace(progress(running=1, queued=(1,)), paused=False)
+    tracker.on_progress(running)
+    tracker.set_paused(True)
+    tracker.on_progress(running)  # on its way before the planner took the pause
+    assert tracker.view().paused
+    time.sleep(0.06)
+    tracker.on_progress(running)  # still not paused: the planner is the truth
+    assert not tracker.view().paused
+    tracker.set_paused(True)
+    tracker.on_progress(dataclasses.replace(running, paused=True))
+    tracker.set_paused(False)
+    tracker.on_progress(dataclasses.replace(running, paused=True))
+    assert not tracker.view().paused

@@ -16,8 +16,10 @@ control calls. The bits:
 
 ``paused`` follows the command's own successful pause/resume/stop/abort at
 once, and the planner's ``paused`` flag in its first message and whenever it
-changes (an edge), so that a progress message published just before a pause
-cannot undo it.
+changes (an edge). After the command's own pause or resume, the planner's flag
+counts again only once it agrees (or after ``CONFIRM_TIMEOUT``): a progress
+message published before the planner took the call, and delivered after its
+reply, must not undo it.
 """
 
 from __future__ import annotations
@@ -45,6 +47,9 @@ STATUS_STALE_AFTER = 1.0
 #: Longest wait for the first Planner/progress of a planner that just appeared [s] (it
 #: publishes at 10 Hz at least).
 FIRST_PROGRESS_TIMEOUT = 0.5
+#: Longest time the planner's ``paused`` flag is ignored after the command's own pause or
+#: resume, while it disagrees [s] (the planner publishes on every change, and at 10 Hz).
+CONFIRM_TIMEOUT = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,6 +92,7 @@ class StateTracker:
         self._status_count = 0
         self._paused = False
         self._planner_paused: bool | None = None  # last value of PlannerProgress.paused
+        self._confirm: tuple[bool, float] | None = None  # own pause/resume awaiting the planner's word
         self._published: tuple[int, int] | None = None
         self._planner_up = False  # its liveliness token is there
         self._progress_since_up = False  # a Planner/progress arrived since the token appeared
@@ -127,7 +133,14 @@ class StateTracker:
             self._progress_since_up = True
             self._cond.notify_all()
             self._queue.update(progress)
-            if self._planner_paused is None or progress.paused != self._planner_paused:
+            if self._confirm is not None:
+                paused, since = self._confirm
+                if progress.paused != paused and time.monotonic() - since < CONFIRM_TIMEOUT:
+                    self._changed()
+                    return  # sent before the planner took our call
+                self._confirm = None
+                self._paused = progress.paused  # it agrees, or it is the truth after all
+            elif self._planner_paused is None or progress.paused != self._planner_paused:
                 self._paused = progress.paused  # first message (adopt it) or an edge
             self._planner_paused = progress.paused
             self._changed()
@@ -148,7 +161,7 @@ class StateTracker:
             if any(a.code not in before for a in alarms.alarms) and len(self._queue):
                 log.warning("alarm raised: the motion queue (%d) is discarded", len(self._queue))
                 self._queue.discard_all()
-                self._paused = False
+                self._expect_paused(False)
             self._changed()
 
     @property
@@ -183,6 +196,7 @@ class StateTracker:
             self._queue.forget()
             self._paused = False
             self._planner_paused = None
+            self._confirm = None
             self._changed()
 
     def tick(self) -> None:
@@ -212,13 +226,18 @@ class StateTracker:
         """stop or abort accepted by the planner: the queue and the pause are gone."""
         with self._cond:
             self._queue.discard_all()
-            self._paused = False
+            self._expect_paused(False)
             self._changed()
 
     def set_paused(self, paused: bool) -> None:
+        """The planner accepted our pause (True) or resume (False)."""
         with self._cond:
-            self._paused = paused
+            self._expect_paused(paused)
             self._changed()
+
+    def _expect_paused(self, paused: bool) -> None:
+        self._paused = paused
+        self._confirm = (paused, time.monotonic())
 
     def await_servo(self, done: Callable[[ServoStatus], bool] | None = None, count: int = 2,
                     timeout: float = 0.5) -> bool:
