@@ -195,7 +195,8 @@ class System:
     def clear(self, timeout: float = 5.0) -> Reply:
         """clearAlarms until it says OK (a cause may take a moment to go)."""
         return wait_until(lambda: (r := self.common(OP.clearAlarms)).id == ReturnCode.OK and r, timeout, 0.05,
-                          "clearAlarms to succeed")
+                          "clearAlarms to succeed",
+                          explain=lambda: f"{self.common(OP.clearAlarms)}\n{self.log_tail()}")
 
     def goto(self, q: np.ndarray, speed: int = 60, attempts: int = 3) -> None:
         """A PTP to ``q``, run to its end (again if the planner gave up on it on a busy machine)."""
@@ -745,7 +746,9 @@ def test_service_watch_lost_stale_and_stuck():
 
     watch = ServiceWatch(Service.SERVO, stale_after=0.05)
     assert not watch.token(True, now=10.0) and not watch.stale(10.04)
-    assert watch.stale(10.06)  # up, never heard: silent since its token appeared
+    # Up, never heard: the first beat may come late (subscriptions settling), so the longer threshold.
+    assert not watch.stale(10.06) and not watch.stale(10.0 + ALL_SILENT_AFTER - 0.01)
+    assert watch.stale(10.0 + ALL_SILENT_AFTER + 0.01)
     watch.heard(10.06)
     assert not watch.stale(10.1) and watch.stale(10.2)
     # Nothing shows the heartbeat could have come: the longer threshold.

@@ -19,7 +19,7 @@ from jara_arm.schema.messages import STATE_MESSAGE, StateMessage
 from jara_arm.schema.operations import COMMON, MIDDLE, Interface
 from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import MonitorLink
-from jara_arm.services.runtime.realtime import realtime_process
+from jara_arm.services.runtime.realtime import realtime_process, realtime_thread
 from jara_arm.services.runtime.rpc import InterfaceServer
 from jara_arm.services.runtime.service import announce, run_service, service_session
 
@@ -45,8 +45,10 @@ def state_payload(view: StateView) -> bytes:
     return codec.dumps(body)
 
 
-#: SCHED_FIFO priority of the heartbeat thread and Zenoh's threads; the command's own
-#: work (queries, the watcher) stays under the normal scheduler.
+#: SCHED_FIFO priority of the heartbeat thread and Zenoh's threads; the command's own work
+#: (queries, the watcher) runs one below. Real-time too, because the heartbeat needs the
+#: GIL: held by a thread under the normal scheduler that a busy machine preempts, it
+#: silenced the heartbeat past the hung threshold (a false 0x412).
 DEFAULT_RT_PRIORITY = 20
 #: The main loop or the state watcher not turning for this long is a stuck command service [s].
 MAIN_DEADLINE = 1.0
@@ -58,8 +60,10 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
          plan_timeout: float = PLAN_TIMEOUT, realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
     with service_session(conf, arm, Service.COMMAND) as (session, keys):
         # Only Zenoh's threads exist yet: they carry the heartbeat out; a busy machine
-        # must not delay it into a hung alarm.
+        # must not delay it into a hung alarm. The threads started from here on inherit
+        # the main thread's priority.
         realtime_process(realtime_priority, "command (Zenoh's threads)", skip_caller=True)
+        realtime_thread(max(0, realtime_priority - 1), "command (its own work)")
         heartbeat = Heartbeat(session, keys, Service.COMMAND, realtime_priority)
         main_pulse = heartbeat.pulse("the command's main loop", MAIN_DEADLINE)
         heartbeat.start()

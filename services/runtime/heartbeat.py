@@ -161,9 +161,12 @@ class ServiceWatch:
         return now - max(self.heard_at, self.up_at)
 
     def stale(self, now: float, corroborated: bool = True) -> bool:
-        """Token up, heartbeat silent for longer than ``stale_after`` (``ALL_SILENT_AFTER`` if
-        nothing shows that the heartbeat could have come)."""
-        limit = self.stale_after if corroborated else max(self.stale_after, ALL_SILENT_AFTER)
+        """Token up, heartbeat silent for longer than ``stale_after``; ``ALL_SILENT_AFTER`` if
+        nothing shows that the heartbeat could have come, or none came since the token appeared
+        (a watcher that just started, or subscriptions still settling through the router, hear
+        the services' first beats at different times)."""
+        settled = corroborated and self.heard_at >= self.up_at
+        limit = self.stale_after if settled else max(self.stale_after, ALL_SILENT_AFTER)
         return self.alive and self.silence(now) > limit
 
     def hung(self, now: float, corroborated: bool = True) -> bool:

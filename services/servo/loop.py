@@ -40,7 +40,7 @@ from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
-from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
+from jara_arm.services.runtime.heartbeat import CORROBORATE, HUNG_AFTER, Pulse, ServiceWatch
 from jara_arm.services.runtime.realtime import realtime_thread
 
 from .braking import Braking, Glide
@@ -87,9 +87,12 @@ GIL_SWITCH_INTERVAL = 0.0005
 REPORT_AGAIN = 0.5
 #: The servo loop itself held up this long [s] waits as long before it judges the monitor's silence.
 SELF_STALL = 0.02
-#: The alarm monitor's heartbeat silent this long is 0x413 [s]. Longer than the monitor's own
-#: HUNG_AFTER: the servo has no other service's beats to show the silence is the monitor's own.
-MONITOR_HUNG_AFTER = 0.05
+#: The alarm monitor's heartbeat silent this long is 0x413 [s] (the monitor's own threshold for
+#: the others), provided a witness (the planner's or the command's heartbeat) came within
+#: CORROBORATE; with every heartbeat silent, the servo's own input is held up: ALL_SILENT_AFTER.
+MONITOR_HUNG_AFTER = HUNG_AFTER
+#: Services whose heartbeats show that the monitor's could have come (they travel the same way).
+WITNESSES = (Service.PLANNER, Service.COMMAND)
 #: After a stop for an alarm, a target this far from the measured joints means the
 #: arm is blocked (an obstacle): the servo then holds it where it is, not pushing on [rad or m].
 RELAX_TOLERANCE = 0.01
@@ -169,6 +172,9 @@ class ServoLoop:
         self._monitor_beats = session.declare_subscriber(keys.heartbeat(Service.ALARM_MONITOR),
                                                          zenoh.handlers.RingChannel(1))
         self._monitor_watch = ServiceWatch(Service.ALARM_MONITOR, stale_after=MONITOR_HUNG_AFTER)
+        self._witness_beats = [session.declare_subscriber(keys.heartbeat(w), zenoh.handlers.RingChannel(1))
+                               for w in WITNESSES]
+        self._witness_at = -float("inf")  # [s] monotonic: the newest witness heartbeat
         self._watched_at = time.monotonic()  # [s] the previous _watch_monitor
         self._judge_monitor_after = 0.0  # [s] monotonic: the monitor's silence counts from then on
         self._report_pub = session.declare_publisher(keys.monitor_report, express=True)
@@ -190,7 +196,7 @@ class ServoLoop:
         self._alarm_copy.close()
         for entity in (self._monitor_token, self._monitor_beats, self._cmd_sub, self._estop_sub,
                        self._alarms_sub, self._report_pub, self._fb_pub,
-                       self._status_pub, self._health_pub):
+                       self._status_pub, self._health_pub, *self._witness_beats):
             try:
                 entity.undeclare()
             except Exception:
@@ -598,8 +604,11 @@ class ServoLoop:
                 watch.heard(now, codec.decode_message(HEARTBEAT, sample.payload.to_bytes()).stuck)
             except WireError as exc:
                 log.error("ignored a malformed heartbeat of the alarm monitor: %s", exc)
+        for witness in self._witness_beats:
+            if witness.try_recv() is not None:
+                self._witness_at = now
         if (now >= self._judge_monitor_after and AlarmCode.MONITOR_HUNG not in self.latches
-                and watch.hung(now)):
+                and watch.hung(now, now - self._witness_at <= CORROBORATE)):
             why = "; ".join(watch.stuck) or (f"no heartbeat for {watch.silence(now) * 1e3:.0f} ms (threshold "
                                              f"{watch.stale_after * 1e3:.0f} ms)")
             self._raise(AlarmCode.MONITOR_HUNG, AlarmType.FAULT,
