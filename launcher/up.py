@@ -111,6 +111,12 @@ class Readiness:
                         ", ".join(label(s, a) for a, s in missing))
 
 
+def start_order() -> list[ServiceSpec]:
+    """The alarm monitor first, so that it stops last (the layers stop in reverse order): it
+    sees every other service leave, and no servo sees the monitor go while it runs."""
+    return sorted(SERVICES, key=lambda s: s.name != Service.ALARM_MONITOR.value)
+
+
 def run_up(settings: UpSettings, signals: StopSignals) -> int:
     """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
     with open_router(settings.router) as session:
@@ -122,7 +128,7 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
         readiness = Readiness(settings, presence)
         supervisor = Supervisor([
             [Child(label(s.name, a.arm), child_argv(s, a, settings)) for a in settings.arms]
-            for s in SERVICES])
+            for s in start_order()])
         log.info("router listening on %s; starting %d service process(es)",
                  ", ".join(settings.router.endpoints()), len(supervisor.children))
         demos: list[subprocess.Popen] = []

@@ -119,6 +119,7 @@ class Heartbeat:
 
     seq: int  # counts from 0 at the process's start
     stuck: tuple[str, ...]  # a line per loop that missed its deadline, e.g. "the servo loop: 130 ms"; () if none
+    leaving: bool = False  # the last beat of a service shutting down in order (its token goes next)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,6 +143,8 @@ ALARM_REPORT = StructType(AlarmReport, (
 HEARTBEAT = StructType(Heartbeat, (
     Member("seq", w.ULONG, doc="counts from 0 at the process's start"),
     Member("stuck", w.SeqType("StringSeq", w.STRING), doc="a line per loop that missed its deadline"),
+    Member("leaving", w.BOOLEAN, doc="the last beat of a service shutting down in order: its token "
+           "goes next, and that is not a loss"),
 ), strict=False, doc="Internal: every service -> the alarm monitor, heartbeat/<service>.")
 
 #: The Common operations the alarm monitor serves at ``Monitor/Common/<op>``.

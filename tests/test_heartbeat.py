@@ -72,3 +72,40 @@ def test_beats_name_the_service_count_up_and_report_a_stuck_loop(session: zenoh.
 def test_pulse_deadline_must_be_positive():
     with pytest.raises(ValueError, match="positive"):
         Pulse("a loop", 0.0)
+
+
+def test_leave_sends_one_last_beat_that_says_so_then_nothing(session: zenoh.Session):
+    keys = ArmKeys("hb-leave")
+    beats: collections.deque = collections.deque()
+    sub = session.declare_subscriber(keys.heartbeat(), lambda s: beats.append(
+        codec.decode_message(HEARTBEAT, s.payload.to_bytes())))
+    heartbeat = Heartbeat(session, keys, Service.SERVO)
+    heartbeat.start()
+    try:
+        wait_until(lambda: len(beats) >= 5, 5.0, what="five heartbeats")
+        assert not any(b.leaving for b in list(beats))
+        heartbeat.leave()
+        wait_until(lambda: beats[-1].leaving, 1.0, what="the leaving beat")
+        last = list(beats)
+        assert [b.leaving for b in last].count(True) == 1 and last[-1].seq >= last[-2].seq
+        heartbeat.leave()  # once only
+        heartbeat.close()
+        time.sleep(0.05)
+        assert len(beats) == len(last)
+    finally:
+        heartbeat.close()
+        sub.undeclare()
+
+
+def test_a_watch_forgives_a_service_that_said_it_leaves():
+    from jara_arm.services.runtime.heartbeat import ServiceWatch
+
+    watch = ServiceWatch(Service.PLANNER, stale_after=0.03)
+    watch.token(True, now=1.0)
+    watch.heard(1.01)
+    assert watch.hung(1.05)  # silent
+    watch.heard(1.06, leaving=True)
+    assert not watch.hung(2.0)  # no more beats, token still up: it is on its way out
+    assert watch.token(False, now=2.1) and watch.leaving  # gone, as announced
+    watch.token(True, now=3.0)  # a new process of it
+    assert not watch.leaving

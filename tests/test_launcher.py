@@ -127,6 +127,12 @@ def test_sigint_stops_every_child() -> None:
         assert not [p for p in pids if proc_alive(p)], proc.output
         assert not processes_with(f"127.0.0.1:{port}"), proc.output
         assert "Traceback" not in proc.output
+        # An orderly stop raises no alarm: each service says it leaves; the monitor goes last.
+        assert " FAULT" not in proc.output and "is gone" not in proc.output, proc.output
+        for arm in ("a1", "a2"):
+            for service in ("servo", "planner", "command"):
+                assert f"{arm}/alarm-monitor: the {service} service stopped: it shut down in order" \
+                    in proc.output, proc.output
 
 
 @pytest.mark.timeout(20)

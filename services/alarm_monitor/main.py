@@ -63,6 +63,8 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                 if not monitor.alive:
                     raise RuntimeError("the alarm monitor thread died")
         finally:
+            if stop.is_set():  # asked to stop, not failing: a departure, not a loss
+                heartbeat.leave()
             token.undeclare()
             heartbeat.close()
             server.close()

@@ -214,8 +214,11 @@ class Monitor:
                 continue
             up = s.kind == zenoh.SampleKind.PUT
             if watch.token(up, now):
-                self._raise(LOST_CODE[service], f"the {service.value} service is gone: its liveliness "
-                            "token was deleted (process ended or unreachable)")
+                if watch.leaving:  # shut down in order (a launcher that stops, an operator)
+                    log.warning("the %s service stopped: it shut down in order", service.value)
+                else:
+                    self._raise(LOST_CODE[service], f"the {service.value} service is gone: its liveliness "
+                                "token was deleted (process ended or unreachable)")
             elif up:
                 log.info("the %s service is up", service.value)
 
@@ -233,7 +236,7 @@ class Monitor:
             except WireError as exc:
                 log.error("ignored a malformed heartbeat of the %s: %s", name, exc)
                 continue
-            watch.heard(now, beat.stuck)
+            watch.heard(now, beat.stuck, beat.leaving)
 
     def _hung(self, watch: ServiceWatch, now: float) -> bool:
         return watch.hung(now, corroborated(tuple(self.watches.values()), watch.service, now))

@@ -97,6 +97,8 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                     raise RuntimeError("the state watcher thread died")
                 settings_pub.republish()
         finally:
+            if stop.is_set():  # asked to stop, not failing: a departure, not a loss
+                heartbeat.leave()
             token.undeclare()
             heartbeat.close()
             common.close()

@@ -230,6 +230,8 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                     if not service.alive:
                         raise RuntimeError("the streamer thread died")
             finally:
+                if stop.is_set():  # asked to stop, not failing: a departure, not a loss
+                    service.heartbeat.leave()
                 token.undeclare()
                 service.close()
                 log.info("planner down")

@@ -11,6 +11,10 @@ one service by its liveliness token and its heartbeat.
 
 The thread runs at real-time priority where the process may: a heartbeat
 that is late because the machine is busy would read as a hung service.
+
+A service that shuts down in order calls :meth:`Heartbeat.leave` before it
+deletes its token: its last beat says ``leaving``, so its watchers see a
+departure, not a loss (no lost or hung FAULT for a launcher that stops).
 """
 
 from __future__ import annotations
@@ -42,6 +46,10 @@ HUNG_AFTER = 0.03
 CORROBORATE = 0.015
 #: Every heartbeat silent at once: each service hangs after this long [s].
 ALL_SILENT_AFTER = 0.5
+
+#: After the leaving beat, the token waits this long [s]: the beat (data) and the token's
+#: deletion (a declaration) travel apart, and the beat should come first.
+LEAVE_GRACE = 4 * HEARTBEAT_PERIOD
 
 #: The heartbeat thread itself held up this long [s] (the whole process or machine
 #: stalled): a loop's silence over that time says nothing about the loop.
@@ -79,6 +87,8 @@ class Heartbeat:
         self._pulses: list[Pulse] = []
         self._pub = session.declare_publisher(keys.heartbeat(service), express=True)
         self._stop = threading.Event()
+        self._seq = 0
+        self._left = False
         self._thread = threading.Thread(target=self._run, name=f"{service.value}-heartbeat", daemon=True)
 
     def pulse(self, name: str, deadline: float) -> Pulse:
@@ -90,14 +100,30 @@ class Heartbeat:
     def start(self) -> None:
         self._thread.start()
 
+    def leave(self) -> None:
+        """Beat no more, send the last beat (``leaving``) and give it a head start on the token."""
+        self._stop_thread()
+        if self._left:
+            return
+        self._left = True
+        try:
+            self._pub.put(codec.encode_message(HEARTBEAT, alarms.Heartbeat(self._seq, (), leaving=True)))
+        except zenoh.ZError as exc:
+            log.debug("leaving beat not sent: %s", exc)
+            return
+        time.sleep(LEAVE_GRACE)
+
     def close(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=1.0)
+        self._stop_thread()
         try:
             self._pub.undeclare()
         except Exception:
             pass
+
+    def _stop_thread(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=1.0)
 
     def stuck(self, now: float, steady_since: float = -math.inf) -> tuple[str, ...]:
         """A line per pulse silent beyond its deadline, counting only from ``steady_since`` [s]."""
@@ -107,7 +133,6 @@ class Heartbeat:
 
     def _run(self) -> None:
         realtime_thread(self._priority, f"{self.service.value} heartbeat")
-        seq = 0
         last = steady_since = time.monotonic()
         due = last
         while True:
@@ -122,14 +147,14 @@ class Heartbeat:
                 steady_since = now
             last = now
             try:
-                beat = alarms.Heartbeat(seq, self.stuck(now, steady_since))
+                beat = alarms.Heartbeat(self._seq, self.stuck(now, steady_since))
                 self._pub.put(codec.encode_message(HEARTBEAT, beat))
             except zenoh.ZError as exc:  # the session is closing
                 log.debug("heartbeat not sent: %s", exc)
             except Exception:  # a bug here must not silence the service: say it, beat on
-                if seq % 1000 == 0:
-                    log.exception("heartbeat %d failed", seq)
-            seq = (seq + 1) % (ULONG_MAX + 1)
+                if self._seq % 1000 == 0:
+                    log.exception("heartbeat %d failed", self._seq)
+            self._seq = (self._seq + 1) % (ULONG_MAX + 1)
 
 
 @dataclasses.dataclass
@@ -142,19 +167,23 @@ class ServiceWatch:
     up_at: float = -float("inf")  # [s] monotonic time its token appeared
     heard_at: float = -float("inf")  # [s] monotonic time of its newest heartbeat
     stuck: tuple[str, ...] = ()  # the newest heartbeat's stuck loops
+    leaving: bool = False  # its newest heartbeat said it shuts down in order
 
     def token(self, up: bool, now: float) -> bool:
-        """A liveliness change; True if the service was alive and is now gone."""
+        """A liveliness change; True if the service was alive and is now gone (``leaving`` says
+        whether it announced that)."""
         was = self.alive
         self.alive = up
         if up and not was:
             self.up_at = now
             self.stuck = ()
+            self.leaving = False
         return was and not up
 
-    def heard(self, now: float, stuck: tuple[str, ...] = ()) -> None:
+    def heard(self, now: float, stuck: tuple[str, ...] = (), leaving: bool = False) -> None:
         self.heard_at = now
         self.stuck = stuck
+        self.leaving = leaving
 
     def silence(self, now: float) -> float:
         """[s] since the newest heartbeat (or since the token appeared, if later)."""
@@ -170,8 +199,8 @@ class ServiceWatch:
         return self.alive and self.silence(now) > limit
 
     def hung(self, now: float, corroborated: bool = True) -> bool:
-        """Silent (see :meth:`stale`), or a loop of it stuck."""
-        return self.alive and (bool(self.stuck) or self.stale(now, corroborated))
+        """Silent (see :meth:`stale`), or a loop of it stuck; never once it said it is leaving."""
+        return self.alive and not self.leaving and (bool(self.stuck) or self.stale(now, corroborated))
 
 
 def corroborated(watches: Sequence[ServiceWatch], service: Service, now: float) -> bool:

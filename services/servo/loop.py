@@ -597,11 +597,14 @@ class ServoLoop:
         watch = self._monitor_watch
         while (sample := self._monitor_token.try_recv()) is not None:
             if watch.token(sample.kind == zenoh.SampleKind.PUT, now):
-                self._raise(AlarmCode.MONITOR_LOST, AlarmType.FAULT, "the alarm monitor is gone: its "
-                            "liveliness token was deleted (process ended or unreachable)")
+                # Even in order: nothing would watch overload, overspeed or the other services.
+                why = ("it shut down in order" if watch.leaving
+                       else "its liveliness token was deleted (process ended or unreachable)")
+                self._raise(AlarmCode.MONITOR_LOST, AlarmType.FAULT, f"the alarm monitor is gone: {why}")
         if (sample := self._monitor_beats.try_recv()) is not None:
             try:
-                watch.heard(now, codec.decode_message(HEARTBEAT, sample.payload.to_bytes()).stuck)
+                beat = codec.decode_message(HEARTBEAT, sample.payload.to_bytes())
+                watch.heard(now, beat.stuck, beat.leaving)
             except WireError as exc:
                 log.error("ignored a malformed heartbeat of the alarm monitor: %s", exc)
         for witness in self._witness_beats:

@@ -136,6 +136,8 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                 if not loop.alive:
                     raise RuntimeError("the servo loop thread died")
         finally:
+            if stop.is_set():  # asked to stop, not failing: a departure, not a loss
+                heartbeat.leave()
             token.undeclare()
             heartbeat.close()
             server.close()
