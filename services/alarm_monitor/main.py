@@ -20,7 +20,7 @@ from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import clear_reply, newest_copy
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer, ok
-from jara_arm.services.runtime.service import announce, run_service, service_session
+from jara_arm.services.runtime.service import announce, depart, run_service, service_session
 
 from .monitor import LOOP_DEADLINE, Monitor
 
@@ -63,9 +63,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                 if not monitor.alive:
                     raise RuntimeError("the alarm monitor thread died")
         finally:
-            if stop.is_set():  # asked to stop, not failing: a departure, not a loss
-                heartbeat.leave()
-            token.undeclare()
+            depart(stop, heartbeat, token)
             heartbeat.close()
             server.close()
             monitor.stop()

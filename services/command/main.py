@@ -21,7 +21,7 @@ from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import MonitorLink
 from jara_arm.services.runtime.realtime import realtime_process, realtime_thread
 from jara_arm.services.runtime.rpc import InterfaceServer
-from jara_arm.services.runtime.service import announce, run_service, service_session
+from jara_arm.services.runtime.service import announce, depart, run_service, service_session
 
 from .cartesian import CartesianFeedback, reach
 from .common import CommandCommon
@@ -97,9 +97,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                     raise RuntimeError("the state watcher thread died")
                 settings_pub.republish()
         finally:
-            if stop.is_set():  # asked to stop, not failing: a departure, not a loss
-                heartbeat.leave()
-            token.undeclare()
+            depart(stop, heartbeat, token)
             heartbeat.close()
             common.close()
             middle.close()

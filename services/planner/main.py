@@ -47,7 +47,7 @@ from jara_arm.schema.planner import (
 from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import expired
-from jara_arm.services.runtime.service import announce, run_service, service_session
+from jara_arm.services.runtime.service import announce, depart, run_service, service_session
 
 from .planning import PlanRefused
 from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, LOOP_DEADLINE as STREAMER_DEADLINE, Streamer
@@ -230,9 +230,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                     if not service.alive:
                         raise RuntimeError("the streamer thread died")
             finally:
-                if stop.is_set():  # asked to stop, not failing: a departure, not a loss
-                    service.heartbeat.leave()
-                token.undeclare()
+                depart(stop, service.heartbeat, token)
                 service.close()
                 log.info("planner down")
     finally:

@@ -22,6 +22,7 @@ from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, RobotModel, robot
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys, Service, check_arm
 
+from .heartbeat import Heartbeat
 from .logs import ZenohLogHandler, setup_stderr
 from .zenoh_args import add_zenoh_arguments, config_from_args
 
@@ -64,6 +65,14 @@ def service_session(conf: zenoh.Config, arm: str, service: Service) -> Iterator[
 def announce(session: zenoh.Session, keys: ArmKeys, service: Service) -> zenoh.LivelinessToken:
     """Declare the liveliness token: call it once the service answers queries."""
     return session.liveliness().declare_token(keys.alive(service))
+
+
+def depart(stop: threading.Event, heartbeat: Heartbeat, token: zenoh.LivelinessToken) -> None:
+    """Delete the token; first, if ``stop`` was asked for (not a failure), say so in a last
+    heartbeat, so that the watchers see a departure, not a loss."""
+    if stop.is_set():
+        heartbeat.leave()
+    token.undeclare()
 
 
 def stop_event(exit_with_parent: bool = False) -> threading.Event:

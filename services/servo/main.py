@@ -24,7 +24,7 @@ from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer, ok, refuse
-from jara_arm.services.runtime.service import announce, run_service, service_session
+from jara_arm.services.runtime.service import announce, depart, run_service, service_session
 
 from .loop import DEFAULT_RT_PRIORITY, LOOP_DEADLINE, ServoLoop
 
@@ -136,9 +136,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
                 if not loop.alive:
                     raise RuntimeError("the servo loop thread died")
         finally:
-            if stop.is_set():  # asked to stop, not failing: a departure, not a loss
-                heartbeat.leave()
-            token.undeclare()
+            depart(stop, heartbeat, token)
             heartbeat.close()
             server.close()
             loop.stop()
