@@ -26,6 +26,7 @@ import zenoh
 
 from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
+from jara_arm.services.runtime.timing import add_health_arguments, health_from_args
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, zenoh_config
 
 from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
@@ -67,6 +68,7 @@ class _Parsers:
                              "[m] (repeatable)")
         _log_level(self.up)
         _router_zenoh_arguments(self.up)
+        add_health_arguments(self.up)
 
         self.service = sub.add_parser(
             "service", help="run one service in this process",
@@ -199,7 +201,7 @@ def _up_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> U
             parser.error(f"--arm {item}: arm {arm!r} is given twice")
         arms.append(ArmSpec(arm, robot))
     return UpSettings(tuple(arms), _router_settings(args, parser), args.log_level, tuple(args.obstacle),
-                      args.demo)
+                      args.demo, health_from_args(args))
 
 
 def _setup_logging(level: str) -> None:

@@ -21,6 +21,7 @@ import time
 from jara_arm.schema.keys import Service, any_arm_log
 
 from jara_arm.services.runtime.realtime import realtime_process
+from jara_arm.services.runtime.timing import SAME_HOST, Health, health_argv
 
 from .router import Presence, RouterSettings, local_endpoint, open_router, say
 from .services import SERVICES, ServiceSpec
@@ -46,6 +47,7 @@ class UpSettings:
     log_level: str = "INFO"
     obstacles: tuple[str, ...] = ()  # ``x,y,z,hx,hy,hz`` [m], passed to every servo as --obstacle
     demo: bool = False  # once ready, run ``jara-arm demo`` on every arm (its output on stdout)
+    health: Health = SAME_HOST  # passed to every service (--timing, --hung-after)
 
 
 #: SCHED_FIFO priority of the router's threads: between the servo (40) and the planner (30).
@@ -62,7 +64,7 @@ def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list
     """The command line of one service process: a client of the launcher's router."""
     argv = [sys.executable, "-m", service.module, "--arm", arm.arm, "--robot", arm.robot,
             "--mode", "client", "--connect", local_endpoint(settings.router.endpoints()[0]),
-            "--exit-with-parent", "--log-level", settings.log_level]
+            "--exit-with-parent", "--log-level", settings.log_level, *health_argv(settings.health)]
     if settings.router.config:
         argv += ["--config", os.path.abspath(settings.router.config)]
     if service.service is Service.SERVO:

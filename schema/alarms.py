@@ -11,7 +11,7 @@ Everything here lives under ``JARA_ARM/<arm>/Monitor/``:
 * ``Monitor/report`` (subscriber): :class:`AlarmReport` that a service puts
   when it detects an alarm itself, and again when its cause has gone.
 * ``heartbeat/<service>`` (subscriber): :class:`Heartbeat` that every service
-  publishes every :data:`HEARTBEAT_PERIOD` from a real-time thread of its own.
+  publishes every ``Health.heartbeat_period`` (``services/runtime/timing.py``) from a real-time thread of its own.
   A liveliness token shows connectivity, not health: a stopped or starved
   process falls silent here while its token stays up, and a process whose
   working loop is stuck says so in ``stuck``. Either is the service's hung
@@ -107,10 +107,6 @@ class AlarmList:
     tm: Time  # when the monitor made this list; a later tm is a newer list
     started: Time  # when this monitor process started: a new value means a new monitor
     alarms: tuple[Alarm, ...]
-
-
-#: [s] every service publishes its Heartbeat this often.
-HEARTBEAT_PERIOD = 0.005
 
 
 @dataclasses.dataclass(frozen=True)

@@ -145,7 +145,7 @@ class ArmKeys:
         return f"{self.root}/Command/settings"
 
     def heartbeat(self, service: Service | None = None) -> str:
-        """``Heartbeat`` from every service every ``HEARTBEAT_PERIOD`` (schema.alarms); ``None`` gives ``/*``."""
+        """``Heartbeat`` from every service every ``Health.heartbeat_period`` (services/runtime/timing.py); ``None`` gives ``/*``."""
         return f"{self.root}/heartbeat/{service or '*'}"
 
 

@@ -39,9 +39,9 @@ from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
-from jara_arm.services.runtime.heartbeat import HUNG_AFTER
+from jara_arm.services.runtime.timing import SAME_HOST
 from jara_arm.services.planner.kinematics import Kinematics
-from jara_arm.services.servo.loop import LIMIT_STOP_ACCEL, MONITOR_HUNG_AFTER, OVERSPEED_MARGIN
+from jara_arm.services.servo.loop import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
 from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
 
@@ -537,7 +537,7 @@ def hang_mid_motion(arm: System, service: Service, code: AlarmCode) -> float:
     cause = time.time()
     with stopped(arm.pid(service)):
         t, event = arm.event(code, since)
-        latency(f"{service.value} SIGSTOP (threshold {HUNG_AFTER * 1e3:.0f} ms)", cause, t)
+        latency(f"{service.value} SIGSTOP (threshold {SAME_HOST.hung_after * 1e3:.0f} ms)", cause, t)
         assert event.alarm.type is AlarmType.FAULT and "hangs" in event.alarm.description, event
         check_fault_without(arm, service, code)
         via = arm.servo if service is Service.COMMAND else arm.common
@@ -603,7 +603,8 @@ def restart_monitor(arm: System) -> float:
 
 def servo_alarm_latency(arm: System, name: str, cause: float) -> None:
     """Poll the servo's state until bit 0x04 shows (no monitor to publish an event); record the latency."""
-    wait_until(lambda: arm.servo(OP.getState)["state"] & StateBit.ALARM, 2.0, 0.001, "the servo's bit 0x04")
+    wait_until(lambda: arm.servo(OP.getState)["state"] & StateBit.ALARM, SAME_HOST.hung_after + 2.0, 0.001,
+               "the servo's bit 0x04")
     latency(name, cause, time.time())
 
 
@@ -657,7 +658,7 @@ def test_monitor_hung_by_sigstop(arm: System):
     cause = time.time()
     with stopped(arm.pid(Service.ALARM_MONITOR)):
         servo_alarm_latency(arm, "alarm-monitor SIGSTOP (servo's state; threshold "
-                            f"{MONITOR_HUNG_AFTER * 1e3:.0f} ms)", cause)
+                            f"{SAME_HOST.hung_after * 1e3:.0f} ms)", cause)
         reply = arm.servo(OP.getActiveAlarm)  # the monitor does not answer: the servo's own, said so
         assert [a.code for a in reply["alarms"]] == [AlarmCode.MONITOR_HUNG] and "monitor" in reply.comment
         kept = arm.servo(OP.clearAlarms)
@@ -741,33 +742,47 @@ def test_rating_debounce_and_crossing():
     assert cross.update((1.02,)) is None and not cross.present
 
 
-def test_service_watch_lost_stale_and_stuck():
-    from jara_arm.services.runtime.heartbeat import ALL_SILENT_AFTER, CORROBORATE, ServiceWatch, corroborated
+def test_service_watch_lost_stalled_hung_and_stuck():
+    from jara_arm.services.runtime.heartbeat import ServiceWatch
+    from jara_arm.services.runtime.timing import Health
 
-    watch = ServiceWatch(Service.SERVO, stale_after=0.05)
-    assert not watch.token(True, now=10.0) and not watch.stale(10.04)
-    # Up, never heard: the first beat may come late (subscriptions settling), so the longer threshold.
-    assert not watch.stale(10.06) and not watch.stale(10.0 + ALL_SILENT_AFTER - 0.01)
-    assert watch.stale(10.0 + ALL_SILENT_AFTER + 0.01)
-    watch.heard(10.06)
-    assert not watch.stale(10.1) and watch.stale(10.2)
-    # Nothing shows the heartbeat could have come: the longer threshold.
-    assert not watch.stale(10.06 + ALL_SILENT_AFTER - 0.01, corroborated=False)
-    assert watch.stale(10.06 + ALL_SILENT_AFTER + 0.01, corroborated=False)
-    watch.heard(10.3, ("the servo loop has not turned for 150 ms (deadline 100 ms)",))
-    assert watch.hung(10.3) and not watch.stale(10.3)  # stuck while beating
-    watch.heard(10.31)
-    assert not watch.hung(10.32)
-    assert watch.token(False, now=10.4) and not watch.stale(11.0) and not watch.hung(11.0)  # lost, not hung
-    planner = ServiceWatch(Service.PLANNER)
-    planner.token(True, now=10.0)
-    planner.heard(11.0)
-    watches = (watch, planner)
-    assert not corroborated(watches, Service.PLANNER, 11.0)  # the servo's token is down: no witness
-    watch.token(True, now=11.0)
-    watch.heard(11.0)
-    assert corroborated(watches, Service.PLANNER, 11.0 + CORROBORATE - 0.001)
-    assert not corroborated(watches, Service.PLANNER, 11.0 + CORROBORATE + 0.001)
+    health = Health("test", heartbeat_period=0.01, stall_after=0.05, hung_after=0.2, first_beat_grace=1.0)
+    watch = ServiceWatch(Service.SERVO, health)
+    assert not watch.token(True, now=10.0) and not watch.stale(10.1)
+    # Up, never heard: the first beat may come late (subscriptions settling), so the grace.
+    assert not watch.stale(10.3) and not watch.stale(10.99) and watch.stale(11.01)
+    assert watch.heard(10.5) is None  # the first beat ends no stall
+    assert watch.heard(10.54) is None and watch.stalls == 0  # within stall_after
+    assert not watch.stale(10.7) and watch.stale(10.75)  # hung_after past the newest beat
+    assert watch.heard(10.64) == pytest.approx(0.1) and watch.stalls == 1  # a stall, counted
+    assert "silent for 100 ms" in watch.stall_line(0.1) and "hung above 200 ms" in watch.stall_line(0.1)
+    assert "no heartbeat for 300 ms" in watch.why_hung(10.94)
+    watch.heard(10.95, ("the servo loop has not turned for 250 ms (deadline 200 ms)",))
+    assert watch.hung(10.95) and not watch.stale(10.95)  # stuck while beating
+    assert "servo loop" in watch.why_hung(10.95)
+    watch.heard(10.96)
+    assert not watch.hung(10.97)
+    assert watch.token(False, now=11.0) and not watch.stale(12.0) and not watch.hung(12.0)  # lost, not hung
+
+
+def test_timing_profiles_and_their_arguments():
+    import argparse
+
+    from jara_arm.services.runtime.timing import LAN, Health, add_health_arguments, health, health_from_args
+
+    assert SAME_HOST.hung_after < LAN.hung_after
+    for profile in (SAME_HOST, LAN):  # ten beats per hung bound at least
+        assert profile.hung_after >= 10 * profile.heartbeat_period
+    parser = argparse.ArgumentParser()
+    add_health_arguments(parser)
+    assert health_from_args(parser.parse_args([])) == SAME_HOST
+    assert health_from_args(parser.parse_args(["--timing", "lan"])) == LAN
+    custom = health_from_args(parser.parse_args(["--hung-after", "0.3"]))
+    assert custom.hung_after == 0.3 and custom.heartbeat_period < custom.stall_after < 0.3
+    with pytest.raises(ValueError, match="same-host, lan"):
+        health("wan")
+    with pytest.raises(ValueError, match="hung_after"):
+        Health("bad", heartbeat_period=0.1, stall_after=0.5, hung_after=0.4, first_beat_grace=1.0)
 
 
 def test_newer_alarm_lists():

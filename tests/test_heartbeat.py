@@ -13,11 +13,16 @@ import pytest
 import zenoh
 
 from jara_arm.schema import codec
-from jara_arm.schema.alarms import HEARTBEAT, HEARTBEAT_PERIOD
+from jara_arm.schema.alarms import HEARTBEAT
 from jara_arm.schema.keys import ArmKeys, Service, parse_heartbeat
 from jara_arm.services.runtime.heartbeat import Heartbeat, Pulse
+from jara_arm.services.runtime.timing import Health
 
 from .support import endpoint, free_port, wait_until
+
+
+#: Beats every 5 ms, so that these tests see many in little time.
+FAST = Health("test", heartbeat_period=0.005, stall_after=0.05, hung_after=1.0, first_beat_grace=1.0)
 
 
 @pytest.fixture
@@ -35,7 +40,7 @@ def test_beats_name_the_service_count_up_and_report_a_stuck_loop(session: zenoh.
     beats: collections.deque = collections.deque()
     sub = session.declare_subscriber(keys.heartbeat(), lambda s: beats.append(
         (str(s.key_expr), codec.decode_message(HEARTBEAT, s.payload.to_bytes()))))
-    heartbeat = Heartbeat(session, keys, Service.PLANNER)
+    heartbeat = Heartbeat(session, keys, Service.PLANNER, health=FAST)
     pulse = heartbeat.pulse("the test loop", deadline=0.2)
     heartbeat.start()
     try:
@@ -50,7 +55,7 @@ def test_beats_name_the_service_count_up_and_report_a_stuck_loop(session: zenoh.
         end = time.monotonic() + 0.3
         while time.monotonic() < end:
             pulse.beat()
-            time.sleep(HEARTBEAT_PERIOD / 2)
+            time.sleep(FAST.heartbeat_period / 2)
         assert beats and all(b.stuck == () for _, b in list(beats))
         stuck = wait_until(lambda: next((b.stuck for _, b in list(beats) if b.stuck), None), 2.0,
                            what="a heartbeat naming the stuck loop")
@@ -79,7 +84,7 @@ def test_leave_sends_one_last_beat_that_says_so_then_nothing(session: zenoh.Sess
     beats: collections.deque = collections.deque()
     sub = session.declare_subscriber(keys.heartbeat(), lambda s: beats.append(
         codec.decode_message(HEARTBEAT, s.payload.to_bytes())))
-    heartbeat = Heartbeat(session, keys, Service.SERVO)
+    heartbeat = Heartbeat(session, keys, Service.SERVO, health=FAST)
     heartbeat.start()
     try:
         wait_until(lambda: len(beats) >= 5, 5.0, what="five heartbeats")
@@ -100,7 +105,7 @@ def test_leave_sends_one_last_beat_that_says_so_then_nothing(session: zenoh.Sess
 def test_a_watch_forgives_a_service_that_said_it_leaves():
     from jara_arm.services.runtime.heartbeat import ServiceWatch
 
-    watch = ServiceWatch(Service.PLANNER, stale_after=0.03)
+    watch = ServiceWatch(Service.PLANNER, Health("test", 0.005, 0.01, 0.03, 0.5))
     watch.token(True, now=1.0)
     watch.heard(1.01)
     assert watch.hung(1.05)  # silent

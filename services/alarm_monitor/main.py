@@ -20,9 +20,10 @@ from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import clear_reply, newest_copy
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer, ok
+from jara_arm.services.runtime.timing import SAME_HOST, Health
 from jara_arm.services.runtime.service import announce, depart, run_service, service_session
 
-from .monitor import LOOP_DEADLINE, Monitor
+from .monitor import Monitor
 
 log = logging.getLogger("jara_arm.alarm_monitor")
 
@@ -44,10 +45,10 @@ class MonitorCommon:
 
 
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
-         realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+         health: Health = SAME_HOST, realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
     with service_session(conf, arm, Service.ALARM_MONITOR) as (session, keys):
-        heartbeat = Heartbeat(session, keys, Service.ALARM_MONITOR, realtime_priority)
-        monitor = Monitor(session, keys, robot, heartbeat.pulse("the alarm monitor loop", LOOP_DEADLINE))
+        heartbeat = Heartbeat(session, keys, Service.ALARM_MONITOR, realtime_priority, health)
+        monitor = Monitor(session, keys, robot, heartbeat.pulse("the alarm monitor loop"), health)
         monitor.take_over(newest_copy(session, keys))  # before its first (empty) list goes out
         monitor.start()
         heartbeat.start()

@@ -31,7 +31,8 @@ from jara_arm.schema.keys import ArmKeys, Service, parse_alive, parse_heartbeat
 from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
 from jara_arm.services.planner.kinematics import Kinematics, hg_to_se3
-from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch, corroborated
+from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
+from jara_arm.services.runtime.timing import MONITOR_POLL, SAME_HOST, Health
 
 from .book import AlarmBook
 from .detectors import (CARTESIAN_LIMIT_TOLERANCE, HUNG_CODE, JOINT_LIMIT_TOLERANCE, LOST_CODE,
@@ -42,13 +43,7 @@ from .reactions import Reactions
 log = logging.getLogger(__name__)
 T = TypeVar("T")
 
-POLL_PERIOD = 0.005  #: [s] between two drains: bounds the monitor's share of the detection latency
 LIST_PERIOD = 0.5  #: [s] the AlarmList is published at least this often (2 Hz)
-#: A monitor loop that itself paused this long [s] waits as long before judging staleness,
-#: so that its own hiccup (the messages still in Zenoh's queues) never reads as a hung service.
-SELF_STALL = 0.02
-#: The loop not turning for this long is a stuck monitor (its heartbeat says so; the servo watches) [s].
-LOOP_DEADLINE = 0.1
 _STALL_LOG_EVERY = 10.0  #: [s] at most one warning about the monitor's own pauses this often
 _AXES = "XYZ"
 
@@ -57,9 +52,10 @@ class Monitor:
     """Owner of one arm's active alarms (see the module docstring)."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, robot: RobotModel,
-                 pulse: Pulse | None = None) -> None:
+                 pulse: Pulse | None = None, health: Health = SAME_HOST) -> None:
         self.robot = robot
-        self._pulse = pulse or Pulse("the alarm monitor loop", LOOP_DEADLINE)
+        self.health = health
+        self._pulse = pulse or Pulse("the alarm monitor loop", health.hung_after)
         self.keys = keys
         self.started = Time.now()
         self.book = AlarmBook()
@@ -77,7 +73,7 @@ class Monitor:
         self._robot_from_arm = np.eye(4)  # inv(B): arm frame -> robot frame
         self._tool = np.zeros(3)  # [m] control point in the flange frame (translation of C)
         self._n = n
-        self.watches = {s: ServiceWatch(s) for s in (Service.SERVO, Service.PLANNER, Service.COMMAND)}
+        self.watches = {s: ServiceWatch(s, health) for s in (Service.SERVO, Service.PLANNER, Service.COMMAND)}
         ring, fifo = zenoh.handlers.RingChannel, zenoh.handlers.FifoChannel
         self._estop = session.declare_subscriber(keys.estop, fifo(64))
         self._reports = session.declare_subscriber(keys.monitor_report, fifo(1024))
@@ -142,15 +138,16 @@ class Monitor:
     def _run(self) -> None:
         last = time.monotonic()
         stall_logged = -float("inf")
-        while not self._stop.wait(POLL_PERIOD):
+        while not self._stop.wait(MONITOR_POLL):
             self._pulse.beat()
             now = time.monotonic()
-            if now - last > SELF_STALL:
+            if now - last > self.health.stall_after:
                 if now - stall_logged >= _STALL_LOG_EVERY:
                     log.warning("the alarm monitor itself paused %.0f ms (staleness not judged meanwhile)",
                                 (now - last) * 1e3)
                     stall_logged = now
-                self._judge_after = now + SELF_STALL
+                # Its own pause: the beats still in Zenoh's queues come first, then silences count.
+                self._judge_after = now + self.health.heartbeat_period
             last = now
             try:
                 self._iterate(now)
@@ -236,21 +233,16 @@ class Monitor:
             except WireError as exc:
                 log.error("ignored a malformed heartbeat of the %s: %s", name, exc)
                 continue
-            watch.heard(now, beat.stuck, beat.leaving)
-
-    def _hung(self, watch: ServiceWatch, now: float) -> bool:
-        return watch.hung(now, corroborated(tuple(self.watches.values()), watch.service, now))
+            gap = watch.heard(now, beat.stuck, beat.leaving)
+            if gap is not None:
+                log.warning(watch.stall_line(gap))
 
     def _judge_staleness(self, now: float) -> None:
         for service, watch in self.watches.items():
             code = HUNG_CODE[service]
-            if code in self.book or not self._hung(watch, now):
+            if code in self.book or not watch.hung(now):
                 continue
-            if watch.stuck:
-                why = "; ".join(watch.stuck)
-            else:
-                why = (f"no heartbeat for {watch.silence(now) * 1e3:.0f} ms (threshold "
-                       f"{watch.stale_after * 1e3:.0f} ms; stopped, or starved of the CPU)")
+            why = watch.why_hung(now)
             self._raise(code, f"the {service.value} service hangs while its liveliness token is up: {why}")
 
     def _on_status(self, st: messages.ServoStatus) -> None:
@@ -314,7 +306,7 @@ class Monitor:
             if code == LOST_CODE[service]:
                 return not watch.alive
             if code == HUNG_CODE[service]:
-                return self._hung(watch, time.monotonic())
+                return watch.hung(time.monotonic())
         return False  # emergency stop: a put is an event, gone once acknowledged
 
     # -- the list -------------------------------------------------------------------

@@ -24,17 +24,10 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import COMMON
 from jara_arm.schema.planner import (CONTROL_REQUEST, MOTION_REQUEST, ControlAction, ControlRequest,
                                      MotionRequest)
+from jara_arm.services.runtime.timing import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT
 
 log = logging.getLogger(__name__)
 
-#: Default time the servo has to answer a ``Servo/Common`` query [s]; its own loop
-#: hand-over waits at most 1 s, so 2 s means "the servo is not there".
-SERVO_TIMEOUT = 2.0
-#: Default time the planner has to answer ``Planner/plan`` [s]: planning a long
-#: Cartesian path (IK along it) may take a while; a client's query lasts 10 s by default.
-PLAN_TIMEOUT = 5.0
-#: Default time the planner has to answer ``Planner/control`` [s].
-CONTROL_TIMEOUT = 2.0
 
 
 class _Peer:

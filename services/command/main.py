@@ -21,6 +21,7 @@ from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import MonitorLink
 from jara_arm.services.runtime.realtime import realtime_process, realtime_thread
 from jara_arm.services.runtime.rpc import InterfaceServer
+from jara_arm.services.runtime.timing import SAME_HOST, Health
 from jara_arm.services.runtime.service import announce, depart, run_service, service_session
 
 from .cartesian import CartesianFeedback, reach
@@ -50,31 +51,27 @@ def state_payload(view: StateView) -> bytes:
 #: GIL: held by a thread under the normal scheduler that a busy machine preempts, it
 #: silenced the heartbeat past the hung threshold (a false 0x412).
 DEFAULT_RT_PRIORITY = 20
-#: The main loop or the state watcher not turning for this long is a stuck command service [s].
-MAIN_DEADLINE = 1.0
-WATCHER_DEADLINE = 0.5
-
-
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
          queue_capacity: int = DEFAULT_CAPACITY, servo_timeout: float = SERVO_TIMEOUT,
-         plan_timeout: float = PLAN_TIMEOUT, realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+         plan_timeout: float = PLAN_TIMEOUT, realtime_priority: int = DEFAULT_RT_PRIORITY,
+         health: Health = SAME_HOST) -> None:
     with service_session(conf, arm, Service.COMMAND) as (session, keys):
         # Only Zenoh's threads exist yet: they carry the heartbeat out; a busy machine
         # must not delay it into a hung alarm. The threads started from here on inherit
         # the main thread's priority.
         realtime_process(realtime_priority, "command (Zenoh's threads)", skip_caller=True)
         realtime_thread(max(0, realtime_priority - 1), "command (its own work)")
-        heartbeat = Heartbeat(session, keys, Service.COMMAND, realtime_priority)
-        main_pulse = heartbeat.pulse("the command's main loop", MAIN_DEADLINE)
+        heartbeat = Heartbeat(session, keys, Service.COMMAND, realtime_priority, health)
+        main_pulse = heartbeat.pulse("the command's main loop")
         heartbeat.start()
         state_pub = session.declare_publisher(keys.state)
         tracker = StateTracker(MotionQueue(queue_capacity), lambda v: state_pub.put(state_payload(v)))
-        watcher = Watcher(session, keys, tracker, heartbeat.pulse("the state watcher", WATCHER_DEADLINE))
+        watcher = Watcher(session, keys, tracker, heartbeat.pulse("the state watcher"))
         watcher.start()
         servo = ServoLink(session, keys, servo_timeout)
         core = Core(robot, keys, servo, PlannerLink(session, keys, plan_timeout, CONTROL_TIMEOUT),
                     MonitorLink(session, keys), tracker)
-        feedback = JointFeedback(session, keys, servo)
+        feedback = JointFeedback(tracker, servo)
         cartesian = CartesianFeedback(robot)
         settings = Settings.defaults(robot, reach(cartesian.kinematics))
         settings_pub = SettingsPublisher(session, keys, tracker, robot, settings)
@@ -101,7 +98,6 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
             heartbeat.close()
             common.close()
             middle.close()
-            feedback.close()
             watcher.stop()
             settings_pub.close()
             state_pub.undeclare()

@@ -119,6 +119,13 @@ class StateTracker:
             capacity=q.capacity,
         )
 
+    def measured_joints(self) -> tuple[tuple[float, ...], float] | None:
+        """The joints [rad or m] of the newest Servo/status and its age [s]; None before the first."""
+        st, at = self._status, self._status_at  # one read each: the watcher replaces them
+        if st is None or not st.pos:
+            return None
+        return st.pos, time.monotonic() - at
+
     # -- inputs -----------------------------------------------------------------------
     def on_status(self, status: ServoStatus) -> None:
         with self._cond:

@@ -2,7 +2,7 @@
 
 Zenoh only fills channels (RingChannel for the servo status, where the newest
 value is what counts; FifoChannel for planner progress and liveliness, where
-every change counts); this one thread drains them every ``POLL_PERIOD`` and
+every change counts); this one thread drains them every ``timing.WATCHER_POLL`` and
 also notices a servo that fell silent, which no message would announce.
 """
 
@@ -21,12 +21,12 @@ from jara_arm.schema.planner import PLANNER_PROGRESS
 
 from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.monitor_link import AlarmListCopy
+from jara_arm.services.runtime.timing import WATCHER_POLL
 
 from .state import StateTracker
 
 log = logging.getLogger(__name__)
 
-POLL_PERIOD = 0.005  #: [s] between two drains: bounds the delay of a state change
 _STATUS_RING = 8  #: Servo/status messages kept between drains (100 Hz: two drains' worth and more)
 _PROGRESS_FIFO = 1024  #: Planner/progress messages kept between drains
 _ALARMS_FIFO = 64  #: Monitor/alarms lists kept between drains
@@ -68,7 +68,7 @@ class Watcher:
                 pass
 
     def _run(self) -> None:
-        while not self._stop.wait(POLL_PERIOD):
+        while not self._stop.wait(WATCHER_POLL):
             self._pulse.beat()
             self.drain()
 

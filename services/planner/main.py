@@ -47,10 +47,11 @@ from jara_arm.schema.planner import (
 from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import expired
+from jara_arm.services.runtime.timing import SAME_HOST, Health
 from jara_arm.services.runtime.service import announce, depart, run_service, service_session
 
 from .planning import PlanRefused
-from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, LOOP_DEADLINE as STREAMER_DEADLINE, Streamer
+from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, Streamer
 from .worker import PlanningProcess
 
 log = logging.getLogger("jara_arm.planner")
@@ -100,7 +101,7 @@ class PlannerService:
     """``Planner/plan`` and ``Planner/control`` queryables, the status watch and the streamer."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, model: RobotModel, planner: PlanningProcess,
-                 lead: float, realtime_priority: int) -> None:
+                 lead: float, realtime_priority: int, health: Health = SAME_HOST) -> None:
         self.model = model
         self.planner = planner
         # Every command counts (SyncFIFO): block rather than drop when the link is congested.
@@ -109,10 +110,10 @@ class PlannerService:
                                                   priority=zenoh.Priority.REAL_TIME)
         self._progress_pub = session.declare_publisher(keys.planner_progress, express=True)
         self._status_sub = session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(1))
-        self.heartbeat = Heartbeat(session, keys, Service.PLANNER, max(0, realtime_priority - 1))
+        self.heartbeat = Heartbeat(session, keys, Service.PLANNER, max(0, realtime_priority - 1), health)
         self.streamer = Streamer(model.dof, model.cmd_cycle, self._cmd_pub.put, self._put_progress,
                                  self._poll_status, lead=lead, realtime_priority=realtime_priority,
-                                 pulse=self.heartbeat.pulse("the streamer loop", STREAMER_DEADLINE))
+                                 pulse=self.heartbeat.pulse("the streamer loop"))
         self.streamer.start()
         self.heartbeat.start()
         self._plan_q = session.declare_queryable(keys.planner_plan,
@@ -215,13 +216,14 @@ class PlannerService:
 
 
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
-         lead_ms: float = DEFAULT_LEAD * 1e3, realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+         health: Health = SAME_HOST, lead_ms: float = DEFAULT_LEAD * 1e3,
+         realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
     sys.setswitchinterval(GIL_SWITCH_INTERVAL)
     planner = PlanningProcess(robot, logging.getLevelName(logging.getLogger().level))
     service: PlannerService | None = None
     try:
         with service_session(conf, arm, Service.PLANNER) as (session, keys):
-            service = PlannerService(session, keys, robot, planner, lead_ms * 1e-3, realtime_priority)
+            service = PlannerService(session, keys, robot, planner, lead_ms * 1e-3, realtime_priority, health)
             token = announce(session, keys, Service.PLANNER)
             log.info("planner up: arm %s, robot %s (%d axes%s), lead %.0f ms", arm, robot.name,
                      robot.axis_num, " + gripper" if robot.has_gripper else "", lead_ms)
@@ -239,7 +241,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
         planner.close()
 
 
-def _options(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lead-ms", type=float, default=DEFAULT_LEAD * 1e3, metavar="MS",
                         help="position commands kept ahead of the servo [ms]: the pause/stop latency "
                         f"(default: {DEFAULT_LEAD * 1e3:.0f})")
@@ -249,4 +251,4 @@ def _options(parser: argparse.ArgumentParser) -> None:
 
 
 def run(argv: list[str] | None = None) -> int:
-    return run_service(Service.PLANNER, __doc__.splitlines()[0], main, argv, _options)
+    return run_service(Service.PLANNER, __doc__.splitlines()[0], main, argv, add_arguments)

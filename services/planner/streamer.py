@@ -47,13 +47,15 @@ from jara_arm.services.runtime.realtime import realtime_thread
 
 from .planning import PlanRefused
 from .profile import PathProfile
+from jara_arm.services.runtime.timing import SAME_HOST, STREAM_LEAD, STREAMER_IDLE
+
 from .servo_fifo import FifoEstimate
 from .trajectory import Joints, PlannedMotion
 
 log = logging.getLogger(__name__)
 
-#: Commands kept ahead of the servo [s]: the pause/stop latency, and the margin against hiccups.
-DEFAULT_LEAD = 0.016  # 16 ms: pause/stop still take effect within 20 ms of the reply
+#: Commands kept ahead of the servo [s] (``timing.STREAM_LEAD``).
+DEFAULT_LEAD = STREAM_LEAD
 #: SCHED_FIFO priority of the engine thread: below the servo loop's 40 (0: normal scheduling).
 DEFAULT_RT_PRIORITY = 30
 #: Without a servo status for this long while streaming, the servo is taken as gone [s].
@@ -63,9 +65,6 @@ START_TOLERANCE = 1e-4
 #: After the last command is due, the servo's status is trusted for the start joints after this [s].
 SETTLE = 0.03
 PROGRESS_PERIOD = 0.1  # [s] progress is published at least this often
-_IDLE_WAIT = 0.005  # [s] engine period while there is nothing to send
-#: The engine not turning for this long is a stuck planner (its heartbeat says so) [s].
-LOOP_DEADLINE = 0.25
 _LOW_DEPTH = 2.0  # [commands] an estimated FIFO depth this low while streaming is worth a warning
 
 
@@ -110,7 +109,7 @@ class Streamer:
                  poll_status: Callable[[], ServoStatus | None], *, lead: float = DEFAULT_LEAD,
                  realtime_priority: int = DEFAULT_RT_PRIORITY, pulse: Pulse | None = None) -> None:
         self.dof = dof
-        self._pulse = pulse or Pulse("the streamer loop", LOOP_DEADLINE)
+        self._pulse = pulse or Pulse("the streamer loop", SAME_HOST.hung_after)
         self.period = period  # [s] servo cycle
         self.lead = lead  # [s]
         self._publish = publish
@@ -353,7 +352,7 @@ class Streamer:
             if busy:
                 time.sleep(self.period)
             else:
-                self._wake.wait(_IDLE_WAIT)
+                self._wake.wait(STREAMER_IDLE)  # new work sets it at once
                 self._wake.clear()
 
     def _has_work(self, now: float) -> bool:

@@ -1,16 +1,17 @@
-"""Every service's heartbeat: ``heartbeat/<service>`` every ``HEARTBEAT_PERIOD`` from a thread of its own.
+"""Every service's heartbeat: ``heartbeat/<service>`` every ``Health.heartbeat_period`` from a thread of its own.
 
 A liveliness token shows connectivity, not health. The heartbeat shows that
 the process runs: one stopped with SIGSTOP, or starved of the CPU, falls
-silent within a few periods while its token stays up. It also shows that the
-process's working loops turn: each loop takes a :class:`Pulse` and beats it
-on every turn, and a loop that has not beaten within its deadline is named in
-the heartbeat's ``stuck`` lines. The alarm monitor raises the service's hung
-FAULT (0x410-0x412) on either; :class:`ServiceWatch` is how a watcher judges
-one service by its liveliness token and its heartbeat.
+silent while its token stays up. It also shows that the process's working
+loops turn: each loop takes a :class:`Pulse` and beats it on every turn, and a
+loop that has not beaten within its deadline is named in the heartbeat's
+``stuck`` lines. :class:`ServiceWatch` is how a watcher judges one service by
+its token and its heartbeat, with the bounds of ``timing.Health``: a silence
+longer than ``stall_after`` that ends is a *stall* (logged with its length);
+one longer than ``hung_after`` is a hung service (a FAULT).
 
 The thread runs at real-time priority where the process may: a heartbeat
-that is late because the machine is busy would read as a hung service.
+that is late because the machine is busy would read as a stall.
 
 A service that shuts down in order calls :meth:`Heartbeat.leave` before it
 deletes its token: its last beat says ``leaving``, so its watchers see a
@@ -24,36 +25,23 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Sequence
 
 import zenoh
 
 from jara_arm.schema import codec
 from jara_arm.schema import alarms
-from jara_arm.schema.alarms import HEARTBEAT, HEARTBEAT_PERIOD
+from jara_arm.schema.alarms import HEARTBEAT
 from jara_arm.schema.codes import ULONG_MAX
 from jara_arm.schema.keys import ArmKeys, Service
 
 from .realtime import realtime_thread
+from .timing import SAME_HOST, Health
 
 log = logging.getLogger(__name__)
 
-#: A service whose heartbeat has been silent this long while its token is up hangs [s]:
-#: six heartbeat periods, so that detection stays within 50 ms of the cause (at most
-#: 30 ms + one monitor poll + the transport) while five lost beats in a row are tolerated.
-HUNG_AFTER = 0.03
-#: ... provided another service's heartbeat arrived this recently [s] (three periods).
-CORROBORATE = 0.015
-#: Every heartbeat silent at once: each service hangs after this long [s].
-ALL_SILENT_AFTER = 0.5
-
 #: After the leaving beat, the token waits this long [s]: the beat (data) and the token's
 #: deletion (a declaration) travel apart, and the beat should come first.
-LEAVE_GRACE = 4 * HEARTBEAT_PERIOD
-
-#: The heartbeat thread itself held up this long [s] (the whole process or machine
-#: stalled): a loop's silence over that time says nothing about the loop.
-_SELF_STALL = 4 * HEARTBEAT_PERIOD
+LEAVE_GRACE = 0.05
 
 
 class Pulse:
@@ -80,9 +68,10 @@ class Heartbeat:
     """Publishes this service's ``schema.alarms.Heartbeat`` every ``period`` until :meth:`close`."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, service: Service, priority: int = 0,
-                 period: float = HEARTBEAT_PERIOD) -> None:
+                 health: Health = SAME_HOST) -> None:
         self.service = service
-        self.period = period  # [s]
+        self.health = health
+        self.period = health.heartbeat_period  # [s]
         self._priority = priority
         self._pulses: list[Pulse] = []
         self._pub = session.declare_publisher(keys.heartbeat(service), express=True)
@@ -91,9 +80,10 @@ class Heartbeat:
         self._left = False
         self._thread = threading.Thread(target=self._run, name=f"{service.value}-heartbeat", daemon=True)
 
-    def pulse(self, name: str, deadline: float) -> Pulse:
-        """A new loop to watch: ``name`` says which in the stuck line, e.g. "the servo loop" [s]."""
-        p = Pulse(name, deadline)
+    def pulse(self, name: str, deadline: float | None = None) -> Pulse:
+        """A new loop to watch: ``name`` says which in the stuck line, e.g. "the servo loop";
+        ``deadline`` [s] defaults to the hung bound (a loop that long still is hung)."""
+        p = Pulse(name, self.health.hung_after if deadline is None else deadline)
         self._pulses = [*self._pulses, p]  # replaced, never mutated: the thread reads it lock-free
         return p
 
@@ -143,7 +133,7 @@ class Heartbeat:
             if self._stop.wait(due - now):
                 return
             now = time.monotonic()
-            if now - last > _SELF_STALL:
+            if now - last > self.health.stall_after:  # this thread itself was held up
                 steady_since = now
             last = now
             try:
@@ -159,15 +149,17 @@ class Heartbeat:
 
 @dataclasses.dataclass
 class ServiceWatch:
-    """Liveliness and heartbeat of one service that is needed to move the arm."""
+    """Liveliness and heartbeat of one service, judged with the bounds of ``health``."""
 
     service: Service
-    stale_after: float = HUNG_AFTER  # [s]
+    health: Health = SAME_HOST
     alive: bool = False
     up_at: float = -float("inf")  # [s] monotonic time its token appeared
     heard_at: float = -float("inf")  # [s] monotonic time of its newest heartbeat
     stuck: tuple[str, ...] = ()  # the newest heartbeat's stuck loops
     leaving: bool = False  # its newest heartbeat said it shuts down in order
+    stalls: int = 0  # silences longer than health.stall_after that ended (the service beat again)
+    longest_stall: float = 0.0  # [s] the longest of them
 
     def token(self, up: bool, now: float) -> bool:
         """A liveliness change; True if the service was alive and is now gone (``leaving`` says
@@ -180,29 +172,45 @@ class ServiceWatch:
             self.leaving = False
         return was and not up
 
-    def heard(self, now: float, stuck: tuple[str, ...] = (), leaving: bool = False) -> None:
+    def heard(self, now: float, stuck: tuple[str, ...] = (), leaving: bool = False) -> float | None:
+        """A heartbeat arrived at ``now``; returns the silence it ended [s] if that was a stall."""
+        gap = now - self.heard_at if self.heard_at >= self.up_at else 0.0
         self.heard_at = now
         self.stuck = stuck
         self.leaving = leaving
+        if gap > self.health.stall_after:
+            self.stalls += 1
+            self.longest_stall = max(self.longest_stall, gap)
+            return gap
+        return None
 
     def silence(self, now: float) -> float:
         """[s] since the newest heartbeat (or since the token appeared, if later)."""
         return now - max(self.heard_at, self.up_at)
 
-    def stale(self, now: float, corroborated: bool = True) -> bool:
-        """Token up, heartbeat silent for longer than ``stale_after``; ``ALL_SILENT_AFTER`` if
-        nothing shows that the heartbeat could have come, or none came since the token appeared
-        (a watcher that just started, or subscriptions still settling through the router, hear
-        the services' first beats at different times)."""
-        settled = corroborated and self.heard_at >= self.up_at
-        limit = self.stale_after if settled else max(self.stale_after, ALL_SILENT_AFTER)
-        return self.alive and self.silence(now) > limit
+    def limit(self) -> float:
+        """[s] the silence that makes it hung: ``hung_after``, or ``first_beat_grace`` while no
+        beat came since its token appeared (a service just up, or a watcher just started)."""
+        settled = self.heard_at >= self.up_at
+        return self.health.hung_after if settled else max(self.health.hung_after, self.health.first_beat_grace)
 
-    def hung(self, now: float, corroborated: bool = True) -> bool:
+    def stale(self, now: float) -> bool:
+        """Token up, heartbeat silent for longer than :meth:`limit`."""
+        return self.alive and self.silence(now) > self.limit()
+
+    def hung(self, now: float) -> bool:
         """Silent (see :meth:`stale`), or a loop of it stuck; never once it said it is leaving."""
-        return self.alive and not self.leaving and (bool(self.stuck) or self.stale(now, corroborated))
+        return self.alive and not self.leaving and (bool(self.stuck) or self.stale(now))
 
+    def why_hung(self, now: float) -> str:
+        """What makes it hung, for the alarm's description."""
+        if self.stuck:
+            return "; ".join(self.stuck)
+        return (f"no heartbeat for {self.silence(now) * 1e3:.0f} ms (bound {self.limit() * 1e3:.0f} ms, "
+                f"timing profile {self.health.name}; stopped, or starved of the CPU)")
 
-def corroborated(watches: Sequence[ServiceWatch], service: Service, now: float) -> bool:
-    """Whether another watched service's heartbeat arrived within ``CORROBORATE`` of ``now``."""
-    return any(now - w.heard_at <= CORROBORATE for w in watches if w.service != service and w.alive)
+    def stall_line(self, gap: float) -> str:
+        """The warning for a stall that ended [s]."""
+        return (f"the {self.service.value} service was silent for {gap * 1e3:.0f} ms and is back (stall "
+                f"{self.stalls}; warned above {self.health.stall_after * 1e3:.0f} ms, hung above "
+                f"{self.health.hung_after * 1e3:.0f} ms)")

@@ -28,11 +28,10 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm
 
 from .rpc import ok, refuse
+from .timing import MONITOR_TIMEOUT
 
 log = logging.getLogger(__name__)
 
-#: Time the alarm monitor has to answer [s]; it answers from memory in about a millisecond.
-MONITOR_TIMEOUT = 0.3
 
 
 def clear_reply(cleared: list[Alarm], kept: list[Alarm]) -> Reply:

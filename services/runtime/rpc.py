@@ -24,13 +24,13 @@ from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import op_of
 from jara_arm.schema.operations import Operation
 
+from .timing import DEADLINE_GRACE
+
 log = logging.getLogger(__name__)
 
 _ZENOH_ENCODING = {Encoding.JSON: zenoh.Encoding.APPLICATION_JSON,
                    Encoding.MSGPACK: zenoh.Encoding("application/msgpack")}
 _CHANNEL_CAPACITY = 1024
-#: A query is dropped once its requester's deadline passed by this much [s] (absorbs clock skew between hosts).
-DEADLINE_GRACE = 0.05
 
 
 def expired(query: zenoh.Query) -> float | None:

@@ -1,6 +1,6 @@
 """The skeleton every service shares: arguments, session, logging, liveliness, shutdown.
 
-Each service module defines ``main(conf, arm, robot, stop, **options)`` that
+Each service module defines ``main(conf, arm, robot, stop, health, **options)`` that
 opens its session with :func:`service_session` and runs until ``stop`` is set,
 and a ``run(argv)`` entry built with :func:`run_service`.
 """
@@ -24,6 +24,7 @@ from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys, Service, check_arm
 
 from .heartbeat import Heartbeat
 from .logs import ZenohLogHandler, setup_stderr
+from .timing import add_health_arguments, health_from_args
 from .zenoh_args import add_zenoh_arguments, config_from_args
 
 log = logging.getLogger(__name__)
@@ -41,6 +42,7 @@ def service_parser(service: Service, description: str) -> argparse.ArgumentParse
     p.add_argument("--exit-with-parent", action="store_true",
                    help="exit when the launching process dies (set by the launcher)")
     add_zenoh_arguments(p)
+    add_health_arguments(p)
     return p
 
 
@@ -111,12 +113,13 @@ def run_service(service: Service, description: str, main: ServiceMain,
         check_arm(args.arm)
         model: RobotModel = robot(args.robot)
         conf = config_from_args(args)
-    except (JaraArmError, zenoh.ZError, OSError) as exc:
+        health = health_from_args(args)
+    except (JaraArmError, zenoh.ZError, OSError, ValueError) as exc:
         parser.error(str(exc))
     stop = stop_event(args.exit_with_parent)
     extra = {k: v for k, v in vars(args).items() if k not in _SHARED}
     try:
-        main(conf, args.arm, model, stop, **extra)
+        main(conf, args.arm, model, stop, health=health, **extra)
     except Exception:
         log.exception("%s (%s) failed", service.value, args.arm)
         return 1
@@ -124,7 +127,7 @@ def run_service(service: Service, description: str, main: ServiceMain,
 
 
 _SHARED = {"arm", "robot", "log_level", "exit_with_parent", "mode", "listen", "connect", "config",
-           "multicast"}
+           "multicast", "timing", "hung_after"}
 
 
 if __name__ == "__main__":  # pragma: no cover

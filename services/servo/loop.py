@@ -40,7 +40,9 @@ from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
-from jara_arm.services.runtime.heartbeat import CORROBORATE, HUNG_AFTER, Pulse, ServiceWatch
+from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
+from jara_arm.services.runtime.timing import (HEALTH_EVERY, RESYNC_AFTER, SAME_HOST, STATUS_EVERY,
+                                              UNDERRUN_GRACE, Health)
 from jara_arm.services.runtime.realtime import realtime_thread
 
 from .braking import Braking, Glide
@@ -68,16 +70,6 @@ LIMIT_STOP_ACCEL = 2.0
 RESUME_TOLERANCE = 1e-4
 #: Slack of the "stops before the soft limit" check, for rounding only [rad or m].
 _LIMIT_EPS = 1e-9
-#: Cycles the simulated servo waits, mid-motion, for a late command before it stops the
-#: arm as for a dry FIFO; simulated time stands still meanwhile (nothing moves or jumps).
-UNDERRUN_GRACE = 10
-#: Behind schedule by more than this, the loop stops catching up and restarts its clock [s].
-RESYNC_AFTER = 0.1
-#: The loop not turning for this long is a stuck servo (the heartbeat says so) [s]: a
-#: hundred missed cycles, well beyond the stalls it rides through (RESYNC_AFTER).
-LOOP_DEADLINE = 0.1
-STATUS_EVERY = 10  # cycles between ServoStatus messages
-HEALTH_EVERY = 1.0  # [s] between LoopHealth messages
 #: SCHED_FIFO priority of the loop thread (Linux 1..99; 0 = normal scheduling).
 DEFAULT_RT_PRIORITY = 40
 #: Other threads of the servo process hand the GIL back to the loop this often [s].
@@ -85,14 +77,6 @@ GIL_SWITCH_INTERVAL = 0.0005
 #: A latch the alarm monitor has not listed yet is reported again this often [s]
 #: (the monitor was down or restarted and lost it).
 REPORT_AGAIN = 0.5
-#: The servo loop itself held up this long [s] waits as long before it judges the monitor's silence.
-SELF_STALL = 0.02
-#: The alarm monitor's heartbeat silent this long is 0x413 [s] (the monitor's own threshold for
-#: the others), provided a witness (the planner's or the command's heartbeat) came within
-#: CORROBORATE; with every heartbeat silent, the servo's own input is held up: ALL_SILENT_AFTER.
-MONITOR_HUNG_AFTER = HUNG_AFTER
-#: Services whose heartbeats show that the monitor's could have come (they travel the same way).
-WITNESSES = (Service.PLANNER, Service.COMMAND)
 #: After a stop for an alarm, a target this far from the measured joints means the
 #: arm is blocked (an obstacle): the servo then holds it where it is, not pushing on [rad or m].
 RELAX_TOLERANCE = 0.01
@@ -126,9 +110,10 @@ class ServoLoop:
 
     def __init__(self, model: RobotModel, session: zenoh.Session, keys: ArmKeys,
                  realtime_priority: int = DEFAULT_RT_PRIORITY, obstacles: tuple[Obstacle, ...] = (),
-                 pulse: Pulse | None = None) -> None:
+                 pulse: Pulse | None = None, health: Health = SAME_HOST) -> None:
         self.model = model
-        self._pulse = pulse or Pulse("the servo loop", LOOP_DEADLINE)
+        self.health = health
+        self._pulse = pulse or Pulse("the servo loop", health.hung_after)
         self._rt_priority = realtime_priority
         self.dt = model.cmd_cycle
         self.world = World(model, obstacles)
@@ -171,10 +156,7 @@ class ServoLoop:
             keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True)
         self._monitor_beats = session.declare_subscriber(keys.heartbeat(Service.ALARM_MONITOR),
                                                          zenoh.handlers.RingChannel(1))
-        self._monitor_watch = ServiceWatch(Service.ALARM_MONITOR, stale_after=MONITOR_HUNG_AFTER)
-        self._witness_beats = [session.declare_subscriber(keys.heartbeat(w), zenoh.handlers.RingChannel(1))
-                               for w in WITNESSES]
-        self._witness_at = -float("inf")  # [s] monotonic: the newest witness heartbeat
+        self._monitor_watch = ServiceWatch(Service.ALARM_MONITOR, health)
         self._watched_at = time.monotonic()  # [s] the previous _watch_monitor
         self._judge_monitor_after = 0.0  # [s] monotonic: the monitor's silence counts from then on
         self._report_pub = session.declare_publisher(keys.monitor_report, express=True)
@@ -196,7 +178,7 @@ class ServoLoop:
         self._alarm_copy.close()
         for entity in (self._monitor_token, self._monitor_beats, self._cmd_sub, self._estop_sub,
                        self._alarms_sub, self._report_pub, self._fb_pub,
-                       self._status_pub, self._health_pub, *self._witness_beats):
+                       self._status_pub, self._health_pub):
             try:
                 entity.undeclare()
             except Exception:
@@ -591,8 +573,9 @@ class ServoLoop:
     def _watch_monitor(self) -> None:
         """The alarm monitor's token and heartbeat: 0x403 when it is gone, 0x413 when it hangs."""
         now = time.monotonic()
-        if now - self._watched_at > SELF_STALL:  # this loop was held up: the silence is not the monitor's
-            self._judge_monitor_after = now + SELF_STALL
+        if now - self._watched_at > self.health.stall_after:
+            # This loop was held up: the beats still in Zenoh's queue come first.
+            self._judge_monitor_after = now + self.health.heartbeat_period
         self._watched_at = now
         watch = self._monitor_watch
         while (sample := self._monitor_token.try_recv()) is not None:
@@ -604,16 +587,15 @@ class ServoLoop:
         if (sample := self._monitor_beats.try_recv()) is not None:
             try:
                 beat = codec.decode_message(HEARTBEAT, sample.payload.to_bytes())
-                watch.heard(now, beat.stuck, beat.leaving)
+                gap = watch.heard(now, beat.stuck, beat.leaving)
             except WireError as exc:
                 log.error("ignored a malformed heartbeat of the alarm monitor: %s", exc)
-        for witness in self._witness_beats:
-            if witness.try_recv() is not None:
-                self._witness_at = now
+            else:
+                if gap is not None:
+                    log.warning(watch.stall_line(gap))
         if (now >= self._judge_monitor_after and AlarmCode.MONITOR_HUNG not in self.latches
-                and watch.hung(now, now - self._witness_at <= CORROBORATE)):
-            why = "; ".join(watch.stuck) or (f"no heartbeat for {watch.silence(now) * 1e3:.0f} ms (threshold "
-                                             f"{watch.stale_after * 1e3:.0f} ms)")
+                and watch.hung(now)):
+            why = watch.why_hung(now)
             self._raise(AlarmCode.MONITOR_HUNG, AlarmType.FAULT,
                         f"the alarm monitor hangs while its liveliness token is up: {why}")
 

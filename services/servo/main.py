@@ -24,9 +24,10 @@ from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import InterfaceServer, ok, refuse
+from jara_arm.services.runtime.timing import SAME_HOST, Health
 from jara_arm.services.runtime.service import announce, depart, run_service, service_session
 
-from .loop import DEFAULT_RT_PRIORITY, LOOP_DEADLINE, ServoLoop
+from .loop import DEFAULT_RT_PRIORITY, ServoLoop
 
 log = logging.getLogger("jara_arm.servo")
 
@@ -112,11 +113,12 @@ def check_soft_limits(limits: Sequence[LimitValue], model: RobotModel) -> None:
 
 
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
-         realtime_priority: int = DEFAULT_RT_PRIORITY, obstacle: Sequence[Obstacle] | None = None) -> None:
+         health: Health = SAME_HOST, realtime_priority: int = DEFAULT_RT_PRIORITY,
+         obstacle: Sequence[Obstacle] | None = None) -> None:
     with service_session(conf, arm, Service.SERVO) as (session, keys):
-        heartbeat = Heartbeat(session, keys, Service.SERVO, max(0, realtime_priority - 1))
+        heartbeat = Heartbeat(session, keys, Service.SERVO, max(0, realtime_priority - 1), health)
         loop = ServoLoop(robot, session, keys, realtime_priority, tuple(obstacle or ()),
-                         heartbeat.pulse("the servo loop", LOOP_DEADLINE))
+                         heartbeat.pulse("the servo loop"), health)
         loop.start()
         heartbeat.start()
         common = ServoCommon(loop, MonitorLink(session, keys))
