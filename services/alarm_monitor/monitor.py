@@ -70,6 +70,8 @@ class Monitor:
         self._cartesian = Crossing(CARTESIAN_LIMIT_TOLERANCE)
         self._kinematics = Kinematics(robot, seed_table=0)  # FK only
         self._settings: MotionSettings | None = None
+        self._judged: tuple[object, ...] | None = None  # the (joints, limits, settings) judged last
+        self._settings_seq = 0  # counts MotionSettings received
         self._robot_from_arm = np.eye(4)  # inv(B): arm frame -> robot frame
         self._tool = np.zeros(3)  # [m] control point in the flange frame (translation of C)
         self._n = n
@@ -260,7 +262,12 @@ class Monitor:
             rated = self._overspeed.threshold[axis] / OVERSPEED_MARGIN
             self._raise(AlarmCode.OVERSPEED, f"J{axis + 1} measured speed {abs(st.vel[axis]):.4g} {u}/s is "
                         f"above {OVERSPEED_MARGIN:g} x its rated {rated:.4g} {u}/s")
-        if st.pos:
+        # A servo at rest repeats the same joints: judged once per joints, limits and frames
+        # (forward kinematics 100 times a second for an arm that stands still is most of an
+        # idle monitor's work).
+        judged = (st.pos, st.softLimitJoint, self._settings_seq)
+        if st.pos and judged != self._judged:
+            self._judged = judged
             self._on_position(st.pos)
 
     def _on_position(self, pos: tuple[float, ...]) -> None:
@@ -285,6 +292,7 @@ class Monitor:
     def _on_settings(self, s: MotionSettings) -> None:
         old = self._settings
         self._settings = s
+        self._settings_seq += 1
         if old is None or not (np.array_equal(old.baseOffset, s.baseOffset)
                                and np.array_equal(old.controlPointOffset, s.controlPointOffset)):
             self._robot_from_arm = np.linalg.inv(hg_to_se3(s.baseOffset))

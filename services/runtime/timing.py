@@ -37,6 +37,9 @@ STREAM_LEAD: Final = 0.016
 #: Servo/status (measured speeds, efforts, joints) every this many cycles [cycles]: the
 #: alarm monitor's overload (3 samples) and overspeed (2 samples) detectors count these.
 STATUS_EVERY: Final = 10
+#: ... and every this many while the arm is settled at rest [cycles], and at once on any
+#: change of servo power, alarm, FIFO, target or soft limits: nothing else changes then.
+STATUS_EVERY_AT_REST: Final = 100
 #: Servo/health (the loop's timing statistics) this often [s].
 HEALTH_EVERY: Final = 1.0
 

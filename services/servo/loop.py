@@ -42,7 +42,7 @@ from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.timing import (HEALTH_EVERY, RESYNC_AFTER, SAME_HOST, STATUS_EVERY,
-                                              UNDERRUN_GRACE, Health)
+                                              STATUS_EVERY_AT_REST, UNDERRUN_GRACE, Health)
 from jara_arm.services.runtime.realtime import realtime_thread
 
 from .braking import Braking, Glide
@@ -58,6 +58,11 @@ OVERSPEED_MARGIN = 1.1
 BRAKE_JERK_TIME = 0.02
 #: Below this speed an axis counts as at rest [rad/s or m/s].
 REST_SPEED = 1e-3
+#: At rest this many cycles in a row (nothing commanded, every axis below REST_SPEED), the
+#: world is held as it is instead of stepped [cycles]: the brakes or the holding drives keep
+#: the arm still, and a step costs a third of an idle servo's CPU. Any command, stop or
+#: servo change steps it again in the same cycle.
+SETTLED_CYCLES = 100
 #: Tracking tolerance when deciding that a soft-limit cause has gone [rad or m].
 LIMIT_TOLERANCE = 1e-3
 #: A stop in front of a joint soft limit may decelerate at up to this multiple of an
@@ -143,6 +148,12 @@ class ServoLoop:
         self._interrupted = False  # the stream ran dry mid-motion; wait for a consistent command
         self._cmd_moving = False  # the commanded velocity qd is not all zero
         self._late_cycles = 0  # consecutive cycles waited for a command mid-motion
+        self._still_for = 0  # consecutive cycles at rest (see SETTLED_CYCLES)
+        self._status_k = -STATUS_EVERY_AT_REST  # cycle of the last ServoStatus
+        self._status_said: tuple[object, ...] = ()  # what it said besides the measured values
+        self._status_q: np.ndarray | None = None  # the target it said
+        self._vel_list: list[float] = vel.tolist()
+        self._pos_list: list[float] = pos.tolist()
         self._calls: collections.deque[tuple[Callable[[], Any], concurrent.futures.Future]] = collections.deque()
         self.received = self.consumed = self.underruns = self.dropped = 0
 
@@ -286,16 +297,24 @@ class ServoLoop:
         else:
             self._late_cycles = 0
         self._advance()
-        self.world.command(self.q, self.qd)
-        self.world.step()
-        pos, vel, eff = self.world.read()
-        self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
-        pos_list = pos.tolist()
-        self.state_bits = self._bits(vel.tolist())
-        self._fb_pub.put(messages.timed_joint_pos_payload(tm_ns, pos_list))
+        settled = not (self._still_for < SETTLED_CYCLES or self._braking is not None or self._fifo
+                       or self._cmd_moving)
+        if not settled:
+            self.world.command(self.q, self.qd)
+            self.world.step()
+            pos, vel, eff = self.world.read()
+            self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
+            self._pos_list, self._vel_list = pos.tolist(), vel.tolist()
+            self.state_bits = self._bits(self._vel_list)
+            self._still_for = 0 if self.state_bits & StateBit.MOVING else self._still_for + 1
+        else:  # settled: the world is held as it is (SETTLED_CYCLES)
+            self.state_bits = self._bits(self._vel_list)
+        self._fb_pub.put(messages.timed_joint_pos_payload(tm_ns, self._pos_list))
         if self.latches:  # every cycle: the monitor learns at once that a cause has gone
             self._report_latches()
-        if k % STATUS_EVERY == 0:
+        if (k - self._status_k >= (STATUS_EVERY_AT_REST if settled else STATUS_EVERY)
+                or (settled and self._status_changed())):  # moving: the FIFO changes every cycle
+            self._status_k = k
             self._publish_status(Time(tm_ns // 1_000_000_000, tm_ns % 1_000_000_000))
         return True
 
@@ -633,7 +652,13 @@ class ServoLoop:
             bits |= StateBit.ALARM
         return int(bits)
 
+    def _status_changed(self) -> bool:
+        """Whether anything a status says other than the measured values changed since the last one."""
+        return self._status_said != (self.state_bits, len(self._fifo), self.soft_limits) or self._status_q is not self.q
+
     def _publish_status(self, tm: Time) -> None:
+        self._status_said = (self.state_bits, len(self._fifo), self.soft_limits)
+        self._status_q = self.q
         st = messages.ServoStatus(
             tm, self.servo_on, bool(self.state_bits & StateBit.MOVING), self.alarmed,
             len(self._fifo), self.consumed, self.received, self.underruns,

@@ -1,0 +1,222 @@
+"""Soak: N arms moving continuously for M minutes; every alarm in a soak is a false alarm.
+
+    python bench/soak.py [--arms N] [--minutes M] [--hog] [--robot iiwa] [--timing same-host]
+
+Starts ``jara-arm up`` with N arms, switches every servo on and drives each arm
+back and forth between two joint poses (``movePTPJointAbs`` at 50 %, the next
+motion queued while the current one runs, so the stream never pauses). With
+``--hog``, one normal-priority busy loop per core runs for the whole soak (the
+vision, UI and logging a real cell's PC also runs).
+
+Reports per arm: servo cycles, cycles late by more than one period, overruns,
+underruns (from the servo's own ``Servo/health``), motions completed, calls
+refused, every alarm raised and every stall logged; then CPU per process over
+the soak. Exits 1 if any alarm was raised or any call was refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import json
+import multiprocessing
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+
+import zenoh
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _system import client, launched_system  # noqa: E402
+import cpu  # noqa: E402
+
+from jara_arm.launcher.client import ArmClient, ClientError  # noqa: E402
+from jara_arm.launcher.watch import format_log  # noqa: E402
+from jara_arm.robots import robot  # noqa: E402
+from jara_arm.schema import codec, messages  # noqa: E402
+from jara_arm.schema.codes import ReturnCode, StateBit  # noqa: E402
+from jara_arm.schema.keys import ArmKeys, any_arm_alarm, any_arm_log, arm_of  # noqa: E402
+from jara_arm.schema.operations import OP  # noqa: E402
+
+SPEED = 50  # [%] of the rated joint speeds
+SWING = 0.4  # [rad or m] J1 and J2 swing between the two poses (scaled for prismatic axes)
+
+
+@dataclasses.dataclass
+class ArmTally:
+    cycles: int = 0
+    late: int = 0
+    overruns: int = 0
+    underruns: int = 0
+    lateness_max: float = 0.0  # [s]
+    motions: int = 0
+    refused: list[str] = dataclasses.field(default_factory=list)
+
+
+def hog() -> None:  # pragma: no cover - runs in its own process
+    while True:
+        pass
+
+
+def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Two joint poses around the ready pose, inside the limits."""
+    m = robot(model_name)
+    a, b = list(m.ready_pose), list(m.ready_pose)
+    for i in range(min(2, m.axis_num)):
+        swing = SWING if not m.prismatic[i] else 0.1
+        lim = m.hard_limits[i]
+        centre = min(max(m.ready_pose[i], lim.lower + swing), lim.upper - swing)
+        a[i], b[i] = centre - swing / 2, centre + swing / 2
+    grip = [m.gripper_limits.upper] if m.has_gripper else []
+    return tuple(a), tuple(b)
+
+
+def drive(arm: ArmClient, model_name: str, until: float, tally: ArmTally, stop: threading.Event) -> None:
+    """Keep ``arm`` moving until ``until`` (monotonic): the next motion is queued while one runs.
+
+    The queue length comes from the arm's ``state`` publication (sent on every change).
+    """
+    targets = poses(model_name)
+    states = arm.session.declare_subscriber(arm.keys.state, zenoh.handlers.RingChannel(1))
+    queue_length = 0
+
+    def refused(what: str) -> None:
+        tally.refused.append(f"{time.strftime('%H:%M:%S')} {what}")
+
+    try:
+        for name, reply in (("servoON", arm.common(OP.servoON)),
+                            ("setSpeedJoint", arm.middle(OP.setSpeedJoint, {"spdRatio": SPEED}))):
+            if reply.id != ReturnCode.OK:
+                refused(f"{name}: {reply.id} {reply.comment}")
+        sent = 0
+        while time.monotonic() < until and not stop.is_set():
+            if (s := states.try_recv()) is not None:
+                msg = codec.loads(s.payload.to_bytes())
+                queue_length = int(msg.get("queueLength", 0))
+                if msg["state"] & StateBit.ALARM or not msg["state"] & StateBit.SERVO_ON:
+                    refused(f"state 0x{msg['state']:02x}: alarm or servo off")
+                    stop.wait(1.0)
+                    continue
+            if queue_length < 2:
+                reply = arm.middle(OP.movePTPJointAbs, {"jointPoints": targets[sent % 2]})
+                if reply.id != ReturnCode.OK:
+                    refused(f"movePTPJointAbs: {reply.id} {reply.comment}")
+                    stop.wait(1.0)
+                    continue
+                sent += 1
+                queue_length += 1
+            stop.wait(0.05)
+        arm.wait_idle(60.0)
+        tally.motions = sent
+    except ClientError as exc:
+        refused(str(exc))
+    finally:
+        states.undeclare()
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--arms", type=int, default=1)
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--hog", action="store_true", help="a normal-priority busy loop on every core")
+    ap.add_argument("--robot", default="iiwa")
+    ap.add_argument("--timing", default="same-host")
+    ap.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
+    args = ap.parse_args()
+    arm_ids = [f"a{i}" for i in range(args.arms)]
+    tallies = {a: ArmTally() for a in arm_ids}
+    alarms: list[str] = []
+    stalls: collections.Counter[str] = collections.Counter()
+    warnings: list[str] = []
+    hogs: list[multiprocessing.Process] = []
+    ctx = multiprocessing.get_context("spawn")
+    lines: list[str] = []
+    t_start = time.monotonic()
+    with launched_system(arms=[(a, args.robot) for a in arm_ids], extra=["--timing", args.timing],
+                         lines=lines, timeout=120.0) as port, client(port) as session:
+        ready_after = time.monotonic() - t_start
+        roots = [p for p in cpu.launchers() if f":{port}" in " ".join(cpu._cmdline(p))]
+
+        def on_alarm(s: zenoh.Sample) -> None:
+            ev = codec.decode_message(messages.ALARM_EVENT, s.payload.to_bytes())
+            if ev.event == "raised":
+                alarms.append(f"{time.strftime('%H:%M:%S')} {arm_of(str(s.key_expr))} "
+                              f"0x{ev.alarm.code:02x} {ev.alarm.type.value}: {ev.alarm.description}")
+
+        def on_health(s: zenoh.Sample) -> None:
+            h = codec.decode_message(messages.LOOP_HEALTH, s.payload.to_bytes())
+            t = tallies[arm_of(str(s.key_expr))]
+            t.cycles += h.cycles
+            t.late += h.lateCycles
+            t.overruns += h.overruns
+            t.underruns += h.underruns
+            t.lateness_max = max(t.lateness_max, h.latenessMax)
+
+        def on_log(s: zenoh.Sample) -> None:
+            line, level = format_log(str(s.key_expr), s.payload.to_bytes())
+            if level >= 30:
+                warnings.append(line)
+                if "was silent for" in line:
+                    stalls[arm_of(str(s.key_expr))] += 1
+
+        # Callbacks only append to lists: no work, no blocking.
+        subs = [session.declare_subscriber(any_arm_alarm(), on_alarm),
+                session.declare_subscriber(any_arm_log(), on_log)]
+        subs += [session.declare_subscriber(ArmKeys(a).servo_health, on_health) for a in arm_ids]
+        if args.hog:
+            hogs = [ctx.Process(target=hog, daemon=True) for _ in range(os.cpu_count() or 1)]
+            for h in hogs:
+                h.start()
+        stop = threading.Event()
+        until = time.monotonic() + args.minutes * 60.0
+        cpu_before = cpu.snapshot(roots)
+        t0 = time.monotonic()
+        drivers = [threading.Thread(target=drive, args=(ArmClient(session, a), args.robot, until, tallies[a], stop))
+                   for a in arm_ids]
+        for d in drivers:
+            d.start()
+        for d in drivers:
+            d.join()
+        cpu_after = cpu.snapshot(roots)
+        wall = time.monotonic() - t0
+        for h in hogs:
+            h.terminate()
+        for sub in subs:
+            sub.undeclare()
+    shares: dict[str, float] = {}
+    for pid, s in cpu_after.items():
+        before = cpu_before[pid].ticks if pid in cpu_before else s.ticks
+        shares[s.name] = shares.get(s.name, 0.0) + (s.ticks - before) / cpu._TICK / wall
+    print(f"soak: {args.arms} arm(s) of {args.robot}, {wall / 60:.1f} min, hog {'on' if args.hog else 'off'}, "
+          f"timing {args.timing}; ready after {ready_after:.1f} s")
+    print(f"{'arm':<5} {'cycles':>8} {'late>1T':>8} {'late %':>8} {'max ms':>7} {'overrun':>8} "
+          f"{'underrun':>8} {'motions':>8} {'refused':>8} {'stalls':>7}")
+    for a, t in tallies.items():
+        pct = 100.0 * t.late / max(1, t.cycles)
+        print(f"{a:<5} {t.cycles:>8} {t.late:>8} {pct:>8.3f} {t.lateness_max * 1e3:>7.2f} {t.overruns:>8} "
+              f"{t.underruns:>8} {t.motions:>8} {len(t.refused):>8} {stalls[a]:>7}")
+    print(cpu.table(shares))
+    print(f"alarms raised: {len(alarms)}")
+    for line in alarms:
+        print("  " + line)
+    for a, t in tallies.items():
+        for line in t.refused[:10]:
+            print(f"  refused ({a}): {line}")
+    print(f"warnings logged: {len(warnings)}")
+    for line in warnings[:30]:
+        print("  " + line)
+    if args.json:
+        Path(args.json).write_text(json.dumps({
+            "arms": args.arms, "minutes": wall / 60, "hog": args.hog, "timing": args.timing,
+            "ready_after_s": ready_after, "alarms": alarms, "warnings": len(warnings),
+            "per_arm": {a: dataclasses.asdict(t) | {"stalls": stalls[a]} for a, t in tallies.items()},
+            "cpu": shares}, indent=1))
+    failed = bool(alarms) or any(t.refused for t in tallies.values())
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
