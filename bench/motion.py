@@ -82,7 +82,7 @@ class Bench:
         self.cmds: list[tuple[float, bytes]] = []
         self.fbs: list[tuple[float, bytes]] = []
         self.statuses: list[bytes] = []
-        session.declare_subscriber(self.keys.pos_cmd, lambda s: self._add(self.cmds, s))
+        session.declare_subscriber(self.keys.pos_block, lambda s: self._add(self.cmds, s))
         session.declare_subscriber(self.keys.pos_feedback, lambda s: self._add(self.fbs, s))
         session.declare_subscriber(self.keys.servo_status, lambda s: self._add(self.statuses, s))
         self.progress = session.declare_subscriber(self.keys.planner_progress, zenoh.handlers.RingChannel(1))
@@ -96,9 +96,9 @@ class Bench:
             cmds, fbs, sts = self.cmds, self.fbs, self.statuses
             self.cmds, self.fbs, self.statuses = [], [], []
         dec = lambda b: codec.decode_message(w.TIMED_JOINT_POS, b)  # noqa: E731
-        cmd = [dec(b) for _, b in cmds]
+        blocks = [(t, codec.decode_message(messages.POSITION_BLOCK, b).pos) for t, b in cmds]
         fb = [dec(b) for _, b in fbs]
-        return (np.array([t for t, _ in cmds]), np.array([c.pos for c in cmd]),
+        return (np.array([t for t, rows in blocks for _ in rows]), np.array([r for _, rows in blocks for r in rows]),
                 np.array([f.tm.to_seconds() for f in fb]), np.array([f.pos for f in fb]),
                 [codec.decode_message(messages.SERVO_STATUS, b) for _, b in sts])
 

@@ -70,6 +70,11 @@ class ArmKeys:
         return f"{self.root}/Servo/posCmd"
 
     @property
+    def pos_block(self) -> str:
+        """``PositionBlock``: the planner's commands into the same SyncFIFO, a few cycles per message."""
+        return f"{self.root}/Servo/posBlock"
+
+    @property
     def pos_feedback(self) -> str:
         """``TimedJointPos`` measured every cycle by the servo."""
         return f"{self.root}/Servo/posFeedback"
@@ -218,7 +223,10 @@ KEY_TABLE: tuple[tuple[str, str, str, str], ...] = (
     ("JARA_ARM/<arm>/estop", "subscriber", "every service that moves the arm", "any put"),
     ("JARA_ARM/<arm>/log/<service>", "publisher", "every service", "LogRecord"),
     ("JARA_ARM/<arm>/alive/<service>", "liveliness token", "every service", "-"),
-    ("JARA_ARM/<arm>/Servo/status", "publisher (internal)", "servo", "ServoStatus"),
+    ("JARA_ARM/<arm>/Servo/posBlock", "subscriber (internal)", "servo",
+     "PositionBlock from the planner: several cycles' commands into the same SyncFIFO"),
+    ("JARA_ARM/<arm>/Servo/status", "publisher (internal)", "servo",
+     "ServoStatus, every 10 cycles (every 100 and on change when settled)"),
     ("JARA_ARM/<arm>/Servo/health", "publisher (internal)", "servo", "LoopHealth, ~1 Hz"),
     ("JARA_ARM/<arm>/Planner/plan", "queryable (internal)", "planner", "MotionRequest -> PlanReply"),
     ("JARA_ARM/<arm>/Planner/control", "queryable (internal)", "planner",
@@ -235,5 +243,5 @@ KEY_TABLE: tuple[tuple[str, str, str, str], ...] = (
     ("JARA_ARM/<arm>/Command/settings", "publisher (internal)", "command",
      "MotionSettings, on change and at 4 Hz"),
     ("JARA_ARM/<arm>/heartbeat/<service>", "publisher (internal)", "every service",
-     "Heartbeat, every 5 ms: the process runs; which of its loops are stuck"),
+     "Heartbeat, every heartbeat period (100 ms same-host): the process runs; which loops are stuck"),
 )

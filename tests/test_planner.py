@@ -116,7 +116,7 @@ class Rig:
         self.kin = Kinematics(self.model)
         self._lock = threading.Lock()
         self._cmds: list[tuple[float, bytes]] = []
-        self._cmd_sub = session.declare_subscriber(self.keys.pos_cmd, self._on_cmd)
+        self._cmd_sub = session.declare_subscriber(self.keys.pos_block, self._on_cmd)
         self._fb = session.declare_subscriber(self.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
         self._status = session.declare_subscriber(self.keys.servo_status, zenoh.handlers.FifoChannel(1 << 14))
         self._status_latest = session.declare_subscriber(self.keys.servo_status,
@@ -204,8 +204,11 @@ class Rig:
         status = []
         while (s := self._status.try_recv()) is not None:
             status.append(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
-        cmd = [codec.decode_message(w.TIMED_JOINT_POS, b).pos for _, b in cmds]
-        return Recorded(np.array([t for t, _ in cmds]), np.array(cmd).reshape(-1, self.model.dof),
+        # The planner streams PositionBlocks: every row is one command, arrived with its block.
+        blocks = [(t, codec.decode_message(messages.POSITION_BLOCK, b).pos) for t, b in cmds]
+        cmd = [row for _, rows in blocks for row in rows]
+        return Recorded(np.array([t for t, rows in blocks for _ in rows]),
+                        np.array(cmd).reshape(-1, self.model.dof),
                         np.array(fb).reshape(-1, self.model.dof), status)
 
     def reset(self) -> None:

@@ -208,12 +208,22 @@ def test_fast_feedback_encoder_equals_the_generic_one():
     assert messages.timed_joint_pos_payload(t_ns, pos) == generic
 
 
+def test_position_block_payload_decodes_as_the_generic_message():
+    rows = [[0.1, -2.0, 3.5e-9], [0.2, -1.9, 0.0]]
+    block = codec.decode_message(messages.POSITION_BLOCK, messages.position_block_payload(1_795_331_203.25, rows))
+    assert block.tm == Time(1_795_331_203, 250_000_000)
+    assert [list(r) for r in block.pos] == rows
+    generic = codec.encode_message(messages.POSITION_BLOCK, messages.PositionBlock(block.tm, tuple(map(tuple, rows))))
+    assert codec.decode_message(messages.POSITION_BLOCK, generic) == block
+
+
 def test_keys():
     k = keys.ArmKeys("arm-1_B")
     assert k.interface(Interface.MIDDLE, "movePTPJointAbs") == "JARA_ARM/arm-1_B/Middle/movePTPJointAbs"
     assert k.interface(Interface.COMMON) == "JARA_ARM/arm-1_B/Common/*"
     assert k.servo_common("getState") == "JARA_ARM/arm-1_B/Servo/Common/getState"
     assert k.pos_cmd == "JARA_ARM/arm-1_B/Servo/posCmd"
+    assert k.pos_block == "JARA_ARM/arm-1_B/Servo/posBlock"
     assert k.pos_feedback == "JARA_ARM/arm-1_B/Servo/posFeedback"
     assert k.state == "JARA_ARM/arm-1_B/state" and k.alarm == "JARA_ARM/arm-1_B/alarm"
     assert k.estop == "JARA_ARM/arm-1_B/estop"

@@ -105,7 +105,7 @@ class PlannerService:
         self.model = model
         self.planner = planner
         # Every command counts (SyncFIFO): block rather than drop when the link is congested.
-        self._cmd_pub = session.declare_publisher(keys.pos_cmd, express=True,
+        self._cmd_pub = session.declare_publisher(keys.pos_block, express=True,
                                                   congestion_control=zenoh.CongestionControl.BLOCK,
                                                   priority=zenoh.Priority.REAL_TIME)
         self._progress_pub = session.declare_publisher(keys.planner_progress, express=True)

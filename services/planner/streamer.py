@@ -1,8 +1,9 @@
-"""The execution engine: queued motions -> ``Servo/posCmd``, with pause, resume, stop, abort.
+"""The execution engine: queued motions -> ``Servo/posBlock``, with pause, resume, stop, abort.
 
 One thread (:meth:`Streamer.run`) publishes the samples of the queued motions,
 in order, keeping a small lead over the servo: about ``lead`` seconds of
-commands wait in the servo's SyncFIFO (:class:`FifoEstimate`), enough that the
+commands wait in the servo's SyncFIFO (:class:`FifoEstimate`), topped up every
+``timing.STREAM_BLOCK`` with one ``PositionBlock`` message, enough that the
 FIFO never runs dry while moving and little enough that a pause or stop takes
 effect within ``lead`` plus one cycle of its reply.
 
@@ -35,19 +36,19 @@ from collections.abc import Callable
 
 import numpy as np
 
-from jara_arm.schema import codec
-from jara_arm.schema import wire_types as w
+from jara_arm.schema import messages
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.planner import ControlAction, PlannerProgress
-from jara_arm.schema.types import Time, TimedJointPos
+from jara_arm.schema.types import Time
 
 from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.realtime import realtime_thread
 
+from jara_arm.services.runtime.timing import SAME_HOST, STREAM_BLOCK, STREAM_LEAD, STREAMER_IDLE
+
 from .planning import PlanRefused
 from .profile import PathProfile
-from jara_arm.services.runtime.timing import SAME_HOST, STREAM_LEAD, STREAMER_IDLE
 
 from .servo_fifo import FifoEstimate
 from .trajectory import Joints, PlannedMotion
@@ -349,8 +350,9 @@ class Streamer:
                 with self._lock:
                     self._abort("internal error")
                 busy = False
-            if busy:
-                time.sleep(self.period)
+            if busy:  # a control call or new work wakes it early
+                self._wake.wait(STREAM_BLOCK)
+                self._wake.clear()
             else:
                 self._wake.wait(STREAMER_IDLE)  # new work sets it at once
                 self._wake.clear()
@@ -374,20 +376,19 @@ class Streamer:
         self._underruns = st.underruns
 
     def _fill(self, now: float) -> list[bytes]:
-        """The commands to send now to keep ``lead`` of them in the servo FIFO (lock held)."""
+        """The commands to send now to keep ``lead`` of them in the servo FIFO, as one
+        ``PositionBlock`` (lock held); [] if there is nothing to send."""
         depth = self._fifo.depth(now)
         want = int(round(self.lead / self.period)) - int(depth)
-        out: list[bytes] = []
-        while len(out) < want:
+        rows: list[list[float]] = []
+        while len(rows) < want:
             q = self._next_sample(now)
             if q is None:
                 break
-            due = now + (depth + len(out)) * self.period
-            self._busy_until = due
-            out.append(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(
-                Time.from_seconds(due), tuple(q.tolist()))))
-        self._fifo.sent(now, len(out))
-        return out
+            self._busy_until = now + (depth + len(rows)) * self.period
+            rows.append(q.tolist())
+        self._fifo.sent(now, len(rows))
+        return [messages.position_block_payload(now + depth * self.period, rows)] if rows else []
 
     def _next_sample(self, now: float) -> Joints | None:
         """The next command, advancing through segments and the queue; None when there is none."""

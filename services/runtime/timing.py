@@ -34,6 +34,10 @@ RESYNC_AFTER: Final = 0.1
 #: Commands the planner keeps in the servo's FIFO ahead of the servo [s]: the longest
 #: stall of the planner the stream rides through; pause and stop still act within 20 ms.
 STREAM_LEAD: Final = 0.016
+#: While it streams, the planner tops the servo's FIFO up to STREAM_LEAD this often, in one
+#: message [s]: the FIFO then holds between 12 and 16 ms, and the planner, the router and the
+#: servo handle 250 messages a second instead of 1000.
+STREAM_BLOCK: Final = 0.004
 #: Servo/status (measured speeds, efforts, joints) every this many cycles [cycles]: the
 #: alarm monitor's overload (3 samples) and overspeed (2 samples) detectors count these.
 STATUS_EVERY: Final = 10

@@ -89,6 +89,9 @@ RELAX_TOLERANCE = 0.01
 RELAX_TIME = 0.2
 
 
+_SERVO_ON, _MOVING, _ALARM = int(StateBit.SERVO_ON), int(StateBit.MOVING), int(StateBit.ALARM)
+
+
 @dataclasses.dataclass
 class _Latch:
     """An alarm the servo detected itself; it keeps the arm stopped until the monitor clears it."""
@@ -131,7 +134,7 @@ class ServoLoop:
         self._limit_jmax = self._limit_amax / BRAKE_JERK_TIME
         grip = model.gripper_limits
         self._hard = list(model.hard_limits) + ([grip] if grip else [])
-        self.soft_limits: tuple[LimitValue, ...] = model.hard_limits
+        self.soft_limits = model.hard_limits
 
         pos, vel, eff = self.world.read()
         self.q, self.qd, self.qdd = pos.copy(), np.zeros(n), np.zeros(n)
@@ -158,6 +161,7 @@ class ServoLoop:
         self.received = self.consumed = self.underruns = self.dropped = 0
 
         self._cmd_sub = session.declare_subscriber(keys.pos_cmd, zenoh.handlers.FifoChannel(1 << 16))
+        self._block_sub = session.declare_subscriber(keys.pos_block, zenoh.handlers.FifoChannel(1 << 12))
         self._estop_sub = session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64))
         self._alarms_sub = session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256))
         self._alarm_copy = AlarmListCopy(session, keys, Service.SERVO)
@@ -187,7 +191,7 @@ class ServoLoop:
         self._stop.set()
         self._thread.join(timeout=5.0)
         self._alarm_copy.close()
-        for entity in (self._monitor_token, self._monitor_beats, self._cmd_sub, self._estop_sub,
+        for entity in (self._monitor_token, self._monitor_beats, self._cmd_sub, self._block_sub, self._estop_sub,
                        self._alarms_sub, self._report_pub, self._fb_pub,
                        self._status_pub, self._health_pub):
             try:
@@ -199,6 +203,18 @@ class ServoLoop:
     @property
     def alive(self) -> bool:
         return self._thread.is_alive()
+
+    @property
+    def soft_limits(self) -> tuple[LimitValue, ...]:
+        """[rad or m] the joint soft limits in force, one per arm axis."""
+        return self._soft_limits
+
+    @soft_limits.setter
+    def soft_limits(self, limits: tuple[LimitValue, ...]) -> None:
+        # Kept as arrays too: the loop checks every command against them.
+        self._soft_lower = np.array([lim.lower for lim in limits])
+        self._soft_upper = np.array([lim.upper for lim in limits])
+        self._soft_limits = limits
 
     @property
     def alarmed(self) -> bool:
@@ -335,6 +351,21 @@ class ServoLoop:
                 log.warning("dropped a malformed position command: %s", exc)
                 continue
             self._fifo.append(np.array(msg.pos))
+        while (sample := self._block_sub.try_recv()) is not None:
+            try:
+                block = codec.decode_message(messages.POSITION_BLOCK, sample.payload.to_bytes())
+                rows = np.array(block.pos, dtype=float)
+                if rows.ndim != 2 or rows.shape[1] != self.model.dof:
+                    raise WireError("pos", f"expected rows of {self.model.dof} axes, got shape {rows.shape}")
+            except (WireError, ValueError) as exc:
+                self.dropped += 1
+                log.warning("dropped a malformed position block: %s", exc)
+                continue
+            self.received += len(rows)
+            if not accepting:
+                self.dropped += len(rows)
+                continue
+            self._fifo.extend(rows)
 
     def _advance(self) -> None:
         """Choose this cycle's target: brake, follow the FIFO, or hold."""
@@ -412,10 +443,9 @@ class ServoLoop:
             self._raise(AlarmCode.OVERSPEED, AlarmType.FAULT, "non-finite position command")
             return
         axis = self.model.axis_num
-        outside = [i for i in range(axis)
-                   if not self.soft_limits[i].lower <= cmd[i] <= self.soft_limits[i].upper]
-        if outside:
-            i = outside[0]
+        outside = (cmd[:axis] < self._soft_lower) | (cmd[:axis] > self._soft_upper)
+        if outside.any():
+            i = int(np.argmax(outside))
             lim = self.soft_limits[i]
             self._raise(AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING,
                         f"position command J{i + 1}={cmd[i]:.6g} outside the joint soft limit "
@@ -424,7 +454,7 @@ class ServoLoop:
         if self.model.has_gripper:
             g = self._hard[axis]
             cmd[axis] = min(max(cmd[axis], g.lower), g.upper)
-        if np.any(too_fast):
+        if too_fast.any():
             i = int(np.argmax(np.abs(step) / (self._vmax * self.dt)))
             self._raise(AlarmCode.OVERSPEED, AlarmType.FAULT,
                         f"position command asks J{i + 1} for {abs(step[i]) / self.dt:.3g} per s, "
@@ -455,8 +485,7 @@ class ServoLoop:
         axes a cheap upper bound of the stopping distance brings near a limit.
         """
         n = self.model.axis_num
-        lower = np.array([lim.lower for lim in self.soft_limits])
-        upper = np.array([lim.upper for lim in self.soft_limits])
+        lower, upper = self._soft_lower, self._soft_upper
         v, a = np.abs(qd[:n]), self._limit_amax[:n]
         reach = (v + a * BRAKE_JERK_TIME) ** 2 / (2 * a) + 2 * BRAKE_JERK_TIME * (v + a * BRAKE_JERK_TIME)
         near = np.flatnonzero((q[:n] + reach > upper) | (q[:n] - reach < lower))
@@ -642,15 +671,13 @@ class ServoLoop:
 
     # -- state and publishing -------------------------------------------------------
     def _bits(self, vel: list[float]) -> int:
-        bits = 0
-        if self.servo_on:
-            bits |= StateBit.SERVO_ON
+        bits = _SERVO_ON if self.servo_on else 0  # plain ints: enum arithmetic costs every cycle
         if (self._braking is not None or self._fifo or self._cmd_moving
-                or max(abs(v) for v in vel) > REST_SPEED):
-            bits |= StateBit.MOVING
-        if self.alarmed:
-            bits |= StateBit.ALARM
-        return int(bits)
+                or max(vel) > REST_SPEED or min(vel) < -REST_SPEED):
+            bits |= _MOVING
+        if self.latches or self.monitor_alarms:
+            bits |= _ALARM
+        return bits
 
     def _status_changed(self) -> bool:
         """Whether anything a status says other than the measured values changed since the last one."""
