@@ -50,6 +50,13 @@ class Demo:
         self.say(f"[{mark:>6}] {label:<52} -> {reply.id} {ReturnCode(reply.id).name}: {reply.comment}")
         return reply
 
+    def check(self, label: str, passed: bool, detail: str) -> bool:
+        """A measured outcome: ``[ok]`` or ``[FAILED]`` with what was measured."""
+        if not passed:
+            self.failed.append(label)
+        self.say(f"[{'ok' if passed else 'FAILED':>6}] {label:<52} -> {detail}")
+        return passed
+
     def position(self) -> np.ndarray:
         return np.asarray(self.client.middle(OP.getFeedbackPosCartesian)["pos"].carPos)[:, 3]
 
@@ -64,6 +71,12 @@ class Demo:
             return
         self.client.wait_idle()
         dt = time.monotonic() - t0
+        state = self.client.state()
+        if state & StateBit.ALARM or not state & StateBit.SERVO_ON:
+            alarms = self.client.common(OP.getActiveAlarm)["alarms"]
+            self.check(f"{label}: arrived", False, f"state 0x{state:02x}; active alarms: "
+                       + ("; ".join(f"0x{a.code:02x} {a.type.value} {a.description}" for a in alarms) or "none"))
+            return
         if cartesian:
             d = self.position() - p0
             self.say(f"{'':9}arrived after {dt:.2f} s; the control point moved "
@@ -82,7 +95,9 @@ def run_demo(client: ArmClient, out: TextIO) -> int:
     model: RobotModel | None = next((r for r in ROBOTS.values() if r.type == info.type), None)
     if client.state() & StateBit.ALARM:
         d.step("clearAlarms", lambda: client.common(OP.clearAlarms))
-    d.step("servoON", lambda: client.common(OP.servoON))
+    if d.step("servoON", lambda: client.common(OP.servoON)).id != ReturnCode.OK:
+        d.say("demo stopped: every further step needs the servo on")
+        return len(d.failed)
     d.step(f"setSpeedJoint({SPEED_JOINT} %)", lambda: client.middle(OP.setSpeedJoint, {"spdRatio": SPEED_JOINT}))
     d.step(f"setSpeedCartesian({SPEED_CARTESIAN} %)",
            lambda: client.middle(OP.setSpeedCartesian, {"spdRatio": SPEED_CARTESIAN}))
@@ -106,11 +121,14 @@ def run_demo(client: ArmClient, out: TextIO) -> int:
         time.sleep(0.5)
         held = d.position() - p0
         state = client.state()
-        d.say(f"{'':9}paused (state 0x{state:02x}, bit 0x10 {'set' if state & StateBit.PAUSED else 'NOT set'}) "
-              f"after {held[0]:+.4f} m of {-2 * STEP:+} m")
+        d.check("paused", bool(state & StateBit.PAUSED) and not state & StateBit.ALARM,
+                f"state 0x{state:02x} (bit 0x10 {'set' if state & StateBit.PAUSED else 'NOT set'}) after "
+                f"{held[0]:+.4f} m of {-2 * STEP:+} m")
         d.step("resume", lambda: client.middle(OP.resume))
         client.wait_idle()
-        d.say(f"{'':9}resumed and arrived: moved {d.position()[0] - p0[0]:+.4f} m in x")
+        moved = d.position()[0] - p0[0]
+        d.check("resumed and arrived", abs(moved + 2 * STEP) < 1e-3,
+                f"moved {moved:+.4f} m in x of {-2 * STEP:+} m")
     d.move("goHome", OP.goHome, cartesian=False)
     d.step("servoOFF", lambda: client.common(OP.servoOFF))
     d.say("demo done" if not d.failed else f"demo: {len(d.failed)} step(s) failed: {', '.join(d.failed)}")

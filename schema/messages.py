@@ -138,8 +138,11 @@ POSITION_BLOCK = StructType(PositionBlock, (
 def position_block_payload(due: float, rows: list[list[float]]) -> bytes:
     """MessagePack ``PositionBlock`` (``due`` [s] Unix time) without the generic encoder's
     per-member work; tested to decode as ``POSITION_BLOCK``."""
-    ns = int(round(due * 1e9))
-    return msgpack.packb({"tm": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "pos": rows})
+    sec = int(due // 1)
+    nsec = int(round((due - sec) * 1e9))  # the fraction alone: due * 1e9 would lose 100 ns
+    if nsec >= 1_000_000_000:
+        sec, nsec = sec + 1, nsec - 1_000_000_000
+    return msgpack.packb({"tm": {"sec": sec, "nsec": nsec}, "pos": rows})
 
 
 #: Every message type, for the generated JSON Schema.

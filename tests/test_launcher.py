@@ -20,6 +20,7 @@ from jara_arm.launcher.router import RouterSettings, local_endpoint
 from jara_arm.launcher.services import NAMES
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.keys import Service
+from jara_arm.schema.types import LimitValue
 
 from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
 
@@ -257,3 +258,30 @@ def test_readiness_warns_about_missing_services_then_says_ready_once(
     names = ", ".join(NAMES)
     assert capsys.readouterr().out.splitlines() == [
         f"jara-arm: ready: a1 (iiwa): {names}; a2 (panda): {names}; listening on tcp/127.0.0.1:7447"]
+
+
+@pytest.mark.timeout(120)
+def test_up_with_the_demo_runs_it_clean_and_raises_no_alarm() -> None:
+    """What a newcomer's first `make up` does: ready, the demo's every step ok, no alarm, no stall."""
+    with launcher("--demo") as (proc, port):
+        proc.wait_for_line("demo done", timeout=90)
+        out = proc.output
+        assert "FAILED" not in out, out
+        assert "alarm 0x" not in out and "raised" not in out, out
+        assert "was silent for" not in out, out  # no stall of any service, either
+
+
+@pytest.mark.timeout(120)
+def test_the_demo_says_plainly_when_the_arm_cannot_do_a_step() -> None:
+    """An arm that refuses the motions: the demo prints FAILED with the reason and exits non-zero."""
+    with launcher() as (proc, port):
+        with client_session(port) as session:
+            # Soft limits far from every pose the demo goes to: its motions are refused.
+            client = Client(session)
+            q = client.servo("getFeedbackPosJoint")["pos"]
+            narrow = tuple(LimitValue(v + 0.01, v - 0.01) for v in q[:7])
+            assert client.common("setSoftLimitJoint", {"softLimit": narrow}).id == ReturnCode.OK
+        demo = subprocess.run([*LAUNCHER, "demo", "--connect", endpoint(port)], capture_output=True,
+                              text=True, timeout=90)
+        assert demo.returncode != 0, demo.stdout
+        assert "FAILED" in demo.stdout and "step(s) failed" in demo.stdout, demo.stdout
