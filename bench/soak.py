@@ -52,6 +52,7 @@ class ArmTally:
     overruns: int = 0
     underruns: int = 0
     lateness_max: float = 0.0  # [s]
+    windows: list[tuple[float, int, float]] = dataclasses.field(default_factory=list)  # (t [s], late, max [s])
     motions: int = 0
     refused: list[str] = dataclasses.field(default_factory=list)
 
@@ -154,6 +155,7 @@ def main() -> int:
             t.overruns += h.overruns
             t.underruns += h.underruns
             t.lateness_max = max(t.lateness_max, h.latenessMax)
+            t.windows.append((time.monotonic() - t_start, h.lateCycles, h.latenessMax))
 
         def on_log(s: zenoh.Sample) -> None:
             line, level = format_log(str(s.key_expr), s.payload.to_bytes())
@@ -198,6 +200,10 @@ def main() -> int:
         pct = 100.0 * t.late / max(1, t.cycles)
         print(f"{a:<5} {t.cycles:>8} {t.late:>8} {pct:>8.3f} {t.lateness_max * 1e3:>7.2f} {t.overruns:>8} "
               f"{t.underruns:>8} {t.motions:>8} {len(t.refused):>8} {stalls[a]:>7}")
+    print("worst one-second windows (s after start: late cycles, max lateness):")
+    for a, t in tallies.items():
+        worst = sorted(t.windows, key=lambda w: -w[1])[:5]
+        print(f"  {a}: " + "; ".join(f"{w[0]:.0f} s: {w[1]}, {w[2] * 1e3:.1f} ms" for w in worst))
     print(cpu.table(shares))
     print(f"alarms raised: {len(alarms)}")
     for line in alarms:

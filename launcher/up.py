@@ -77,6 +77,24 @@ def label(service: str, arm: str) -> str:
     return f"{service} ({arm})"
 
 
+def children(service: ServiceSpec, settings: UpSettings) -> list[Child]:
+    """The processes of ``service``: one per arm, but one servo for every arm.
+
+    One servo process runs the cycles of every arm on one real-time thread:
+    a 1 kHz Python loop costs mostly its wake-ups, so N arms on one thread cost
+    a fraction of N threads (docs/architecture decision in docs/timing.md). The
+    price: a servo process that crashes takes every arm's servo with it (each
+    arm then raises 0x400, and the launcher restarts the process).
+    """
+    arms = settings.arms
+    if service.service is Service.SERVO and len(arms) > 1:
+        argv = child_argv(service, arms[0], settings)
+        for a in arms[1:]:
+            argv += ["--with-arm", f"{a.arm}:{a.robot}"]
+        return [Child(label(service.name, ",".join(a.arm for a in arms)), argv)]
+    return [Child(label(service.name, a.arm), child_argv(service, a, settings)) for a in arms]
+
+
 class Readiness:
     """Prints the one ready line once every expected service is alive; warns while not."""
 
@@ -128,9 +146,7 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
         logs = LogPrinter(session, any_arm_log())
         presence = Presence(session)
         readiness = Readiness(settings, presence)
-        supervisor = Supervisor([
-            [Child(label(s.name, a.arm), child_argv(s, a, settings)) for a in settings.arms]
-            for s in start_order()])
+        supervisor = Supervisor([children(s, settings) for s in start_order()])
         log.info("router listening on %s; starting %d service process(es)",
                  ", ".join(settings.router.endpoints()), len(supervisor.children))
         demos: list[subprocess.Popen] = []

@@ -98,7 +98,11 @@ def test_two_arms_with_their_own_robots() -> None:
         assert a1.id == ReturnCode.OK and a2.id == ReturnCode.OK
         assert a1["mInfo"].isGripper is False
         assert a2["mInfo"].isGripper is True
-        assert {(s, a) for s, a, _ in started_pids(proc)} == {(s, a) for s in NAMES for a in ("a1", "a2")}
+        # One servo process runs both arms (one real-time clock); the other services, one each.
+        assert {(s, a) for s, a, _ in started_pids(proc)} == (
+            {(s, a) for s in NAMES if s != "servo" for a in ("a1", "a2")} | {("servo", "a1,a2")})
+        proc.wait_for_line("a2/servo: servo up: arm a2, robot panda", timeout=10)  # logs on each arm's key
+        assert "one clock for arms a1, a2" in proc.wait_for_line("a1/servo: servo up", timeout=10)
 
 
 @pytest.mark.timeout(60)
@@ -122,7 +126,7 @@ def test_killed_service_is_restarted() -> None:
 def test_sigint_stops_every_child() -> None:
     with launcher("--arm", "a1", "--arm", "a2") as (proc, port):
         pids = [pid for _, _, pid in started_pids(proc)]
-        assert len(pids) == 2 * len(NAMES) and all(proc_alive(p) for p in pids)
+        assert len(pids) == 2 * len(NAMES) - 1 and all(proc_alive(p) for p in pids)  # one servo for both
         os.kill(proc.popen.pid, signal.SIGINT)
         assert proc.popen.wait(10) == 0, proc.output
         assert not [p for p in pids if proc_alive(p)], proc.output

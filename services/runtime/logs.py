@@ -32,11 +32,18 @@ def setup_stderr(level: str = "INFO") -> None:
 
 
 class ZenohLogHandler(logging.Handler):
-    """Publishes every record as a ``LogRecord`` message on the service's log key."""
+    """Publishes every record as a ``LogRecord`` message on the service's log key.
 
-    def __init__(self, session: zenoh.Session, keys: ArmKeys, service: Service) -> None:
+    A process that serves several arms (``also``) publishes a record on the key
+    of the arm it names (``extra={"arm": ...}``, e.g. through a ``LoggerAdapter``),
+    and the process's own records on the first arm's key.
+    """
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, service: Service,
+                 also: tuple[ArmKeys, ...] = ()) -> None:
         super().__init__()
         self._service = service
+        self._by_arm = {k.arm: session.declare_publisher(k.log(service)) for k in also}
         self._pending: collections.deque[logging.LogRecord] = collections.deque(maxlen=_QUEUE_LIMIT)
         self._wake = threading.Event()
         self._closed = False
@@ -64,7 +71,7 @@ class ZenohLogHandler(logging.Handler):
                 msg += "\n" + logging.Formatter().formatException(record.exc_info)
             payload = codec.encode_message(messages.LOG_RECORD, messages.LogRecord(
                 record.created, record.levelname, self._service.value, msg, record.name))
-            self._publisher.put(payload)
+            self._by_arm.get(getattr(record, "arm", None), self._publisher).put(payload)
         except Exception:  # a log that cannot be published must not take the service down
             pass
 
@@ -72,8 +79,9 @@ class ZenohLogHandler(logging.Handler):
         self._closed = True
         self._wake.set()
         self._thread.join(timeout=2.0)
-        try:
-            self._publisher.undeclare()
-        except Exception:
-            pass
+        for publisher in (self._publisher, *self._by_arm.values()):
+            try:
+                publisher.undeclare()
+            except Exception:
+                pass
         super().close()

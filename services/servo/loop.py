@@ -1,8 +1,9 @@
-"""The servo loop: one position command per cycle from the SyncFIFO, one PyBullet step.
+"""The servo loop of one arm: one position command per cycle from the SyncFIFO, one PyBullet step.
 
-Runs on its own thread and is the only code that touches the world. Other
+Its cycles run on the process's :class:`~.clock.ServoClock` thread (one thread
+for every arm of the process), the only code that touches the world. Other
 threads change its state only through :meth:`ServoLoop.call`, which runs a
-function at the next cycle boundary; reads use the values the loop publishes
+function at the arm's next cycle; reads use the values the loop publishes
 every cycle (assigning a Python attribute is atomic).
 
 Alarms: the alarm monitor owns the arm's list (``schema/alarms.py``). What the
@@ -22,8 +23,6 @@ import collections
 import concurrent.futures
 import dataclasses
 import logging
-import sys
-import threading
 import time
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -43,7 +42,6 @@ from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.timing import (HEALTH_EVERY, RESYNC_AFTER, SAME_HOST, STATUS_EVERY,
                                               STATUS_EVERY_AT_REST, UNDERRUN_GRACE, Health)
-from jara_arm.services.runtime.realtime import realtime_thread
 
 from .braking import Braking, Glide
 from .world import World
@@ -75,10 +73,6 @@ LIMIT_STOP_ACCEL = 2.0
 RESUME_TOLERANCE = 1e-4
 #: Slack of the "stops before the soft limit" check, for rounding only [rad or m].
 _LIMIT_EPS = 1e-9
-#: SCHED_FIFO priority of the loop thread (Linux 1..99; 0 = normal scheduling).
-DEFAULT_RT_PRIORITY = 40
-#: Other threads of the servo process hand the GIL back to the loop this often [s].
-GIL_SWITCH_INTERVAL = 0.0005
 #: A latch the alarm monitor has not listed yet is reported again this often [s]
 #: (the monitor was down or restarted and lost it).
 REPORT_AGAIN = 0.5
@@ -117,12 +111,14 @@ class ServoLoop:
     """The low-level controller of one arm (see module docstring)."""
 
     def __init__(self, model: RobotModel, session: zenoh.Session, keys: ArmKeys,
-                 realtime_priority: int = DEFAULT_RT_PRIORITY, obstacles: tuple[Obstacle, ...] = (),
-                 pulse: Pulse | None = None, health: Health = SAME_HOST) -> None:
+                 obstacles: tuple[Obstacle, ...] = (), pulse: Pulse | None = None,
+                 health: Health = SAME_HOST) -> None:
         self.model = model
+        self.arm = keys.arm
+        # Records name their arm: one servo process may run several (logs.ZenohLogHandler).
+        self._log = logging.LoggerAdapter(log, {"arm": keys.arm})
         self.health = health
         self._pulse = pulse or Pulse("the servo loop", health.hung_after)
-        self._rt_priority = realtime_priority
         self.dt = model.cmd_cycle
         self.world = World(model, obstacles)
         n = model.dof
@@ -179,17 +175,14 @@ class ServoLoop:
         self._status_pub = session.declare_publisher(keys.servo_status, express=True)
         self._health_pub = session.declare_publisher(keys.servo_health)
         self._stats = _Stats()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="servo-loop", daemon=True)
-        self._failed: BaseException | None = None
+        self._period_ns = model.cmd_cycle_ms * 1_000_000
+        self._tm_ns = 0  # [ns] wall-clock time the newest feedback sample stands for
+        self._cycles = 0
+        self._window_start = time.monotonic()
 
     # -- life cycle ---------------------------------------------------------------
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5.0)
+    def close(self) -> None:
+        """Undeclare everything; call it once the clock has stopped."""
         self._alarm_copy.close()
         for entity in (self._monitor_token, self._monitor_beats, self._cmd_sub, self._block_sub, self._estop_sub,
                        self._alarms_sub, self._report_pub, self._fb_pub,
@@ -199,10 +192,6 @@ class ServoLoop:
             except Exception:
                 pass
         self.world.close()
-
-    @property
-    def alive(self) -> bool:
-        return self._thread.is_alive()
 
     @property
     def soft_limits(self) -> tuple[LimitValue, ...]:
@@ -227,62 +216,49 @@ class ServoLoop:
         return tuple(latch.alarm for latch in list(self.latches.values()))
 
     def call(self, fn: Callable[[], T], timeout: float = 1.0) -> T:
-        """Run ``fn`` on the loop thread at the next cycle boundary and return its result."""
+        """Run ``fn`` on the clock's thread at this arm's next cycle and return its result."""
         fut: concurrent.futures.Future = concurrent.futures.Future()
         self._calls.append((fn, fut))
         return fut.result(timeout=timeout)
 
-    # -- the loop -----------------------------------------------------------------
-    def _run(self) -> None:
-        realtime_thread(self._rt_priority, "servo loop")
-        sys.setswitchinterval(GIL_SWITCH_INTERVAL)
-        period_ns = self.model.cmd_cycle_ms * 1_000_000
-        next_ns = time.monotonic_ns()
-        wall_offset = time.time_ns() - next_ns
+    # -- the cycle, driven by the process's ServoClock (clock.py) ---------------------
+    def begin(self, deadline_wall_ns: int, phase: float = 0.0) -> None:
+        """Before the first :meth:`tick`: the wall-clock time of the first cycle's deadline [ns];
+        ``phase`` in [0, 1) shifts this arm's status and health messages within their periods,
+        so that the arms of one clock do not all publish in the same cycle."""
         # A sample's tm is the time its cycle stands for: one period after the previous
-        # sample while the arm moves (simulated time; the loop may catch up or wait), the
-        # cycle's wall-clock deadline again once it is at rest.
-        tm_ns = next_ns + wall_offset - period_ns
-        window_start = time.monotonic()
-        cycles = 0
-        try:
-            while not self._stop.is_set():
-                self._pulse.beat()
-                now = time.monotonic_ns()
-                if now < next_ns:
-                    time.sleep((next_ns - now) * 1e-9)
-                    now = time.monotonic_ns()
-                lateness = (now - next_ns) * 1e-9
-                if lateness > RESYNC_AFTER:
-                    log.warning("servo loop %.0f ms behind schedule; restarting its clock", lateness * 1e3)
-                    next_ns = now
-                    wall_offset = time.time_ns() - now
-                at_rest = not self._cmd_moving and not self._fifo
-                tm_ns = max(tm_ns + period_ns, next_ns + wall_offset) if at_rest else tm_ns + period_ns
-                if not self._cycle(cycles, tm_ns, behind=lateness > self.dt):
-                    # No command yet mid-motion: the machine stalled (behind schedule) or the
-                    # planner's command is late (within the grace). Simulated time stands
-                    # still until it comes; nothing is stepped or published.
-                    self._stats.waits += 1
-                    tm_ns -= period_ns
-                    next_ns = now + period_ns
-                    wall_offset = time.time_ns() - now
-                    continue
-                done = time.monotonic_ns()
-                st = self._stats
-                st.lateness.append(lateness)
-                if lateness > self.dt:
-                    st.late += 1
-                if done - now > period_ns:
-                    st.overruns += 1
-                cycles += 1
-                next_ns += period_ns
-                if time.monotonic() - window_start >= HEALTH_EVERY:
-                    self._publish_health()
-                    window_start = time.monotonic()
-        except BaseException as exc:  # surfaced by main(): the service exits and is restarted
-            self._failed = exc
-            log.exception("servo loop failed")
+        # sample while the arm moves (simulated time; the clock may catch up, the arm may
+        # wait), the cycle's wall-clock deadline again once it is at rest.
+        self._tm_ns = deadline_wall_ns - self._period_ns
+        self._window_start = time.monotonic() - phase * HEALTH_EVERY
+        self._status_k = -STATUS_EVERY_AT_REST + int(phase * STATUS_EVERY)
+
+    def tick(self, deadline_wall_ns: int, deadline_ns: int, behind: bool) -> bool:
+        """This arm's cycle due at ``deadline_ns`` (monotonic) / ``deadline_wall_ns`` (wall);
+        ``behind``: the clock runs more than a period late. False if the arm waited for a late
+        command instead (simulated time stands still; nothing was stepped or published)."""
+        self._pulse.beat()
+        start = time.monotonic_ns()
+        period = self._period_ns
+        at_rest = not self._cmd_moving and not self._fifo
+        tm_ns = max(self._tm_ns + period, deadline_wall_ns) if at_rest else self._tm_ns + period
+        if not self._cycle(self._cycles, tm_ns, behind=behind):
+            self._stats.waits += 1
+            return False
+        self._tm_ns = tm_ns
+        done = time.monotonic_ns()
+        st = self._stats
+        lateness = (start - deadline_ns) * 1e-9
+        st.lateness.append(lateness)
+        if lateness > self.dt:
+            st.late += 1
+        if done - start > period:
+            st.overruns += 1
+        self._cycles += 1
+        if time.monotonic() - self._window_start >= HEALTH_EVERY:
+            self._publish_health()
+            self._window_start = time.monotonic()
+        return True
 
     def _cycle(self, k: int, tm_ns: int, behind: bool = False) -> bool:
         """One servo cycle; False (nothing done) mid-motion with an empty FIFO while ``behind``
@@ -295,7 +271,7 @@ class ServoLoop:
             try:
                 self.adopt_monitor_list(codec.decode_message(ALARM_LIST, sample.payload.to_bytes()))
             except WireError as exc:
-                log.error("ignored a malformed alarm list from the monitor: %s", exc)
+                self._log.error("ignored a malformed alarm list from the monitor: %s", exc)
         self._alarm_copy.answer(self._alarm_list_held)
         self._watch_monitor()
         while self._calls:
@@ -348,7 +324,7 @@ class ServoLoop:
                     raise WireError("pos", f"expected {self.model.dof} axes, got {len(msg.pos)}")
             except WireError as exc:
                 self.dropped += 1
-                log.warning("dropped a malformed position command: %s", exc)
+                self._log.warning("dropped a malformed position command: %s", exc)
                 continue
             self._fifo.append(np.array(msg.pos))
         while (sample := self._block_sub.try_recv()) is not None:
@@ -359,7 +335,7 @@ class ServoLoop:
                     raise WireError("pos", f"expected rows of {self.model.dof} axes, got shape {rows.shape}")
             except (WireError, ValueError) as exc:
                 self.dropped += 1
-                log.warning("dropped a malformed position block: %s", exc)
+                self._log.warning("dropped a malformed position block: %s", exc)
                 continue
             self.received += len(rows)
             if not accepting:
@@ -389,7 +365,7 @@ class ServoLoop:
             self.underruns += 1
             self._stats.underruns += 1
             self._interrupted = True
-            log.warning("position commands ran dry while moving: controlled stop")
+            self._log.warning("position commands ran dry while moving: controlled stop")
             self.brake()
             self._advance()
             return
@@ -411,7 +387,7 @@ class ServoLoop:
         gap = np.abs(self.q[:n] - self.fb_pos[:n])
         if np.any(gap > RELAX_TOLERANCE):
             i = int(np.argmax(gap))
-            log.warning("the arm stopped %.3g away from its target (J%d): blocked; holding it where it is",
+            self._log.warning("the arm stopped %.3g away from its target (J%d): blocked; holding it where it is",
                         gap[i], i + 1)
             target = self.q.copy()
             target[:n] = self.fb_pos[:n]
@@ -512,7 +488,7 @@ class ServoLoop:
                 self._braking = Braking(self.q, self.qd, self.qdd, self._amax, self._jmax, self.dt)
 
     def emergency_stop(self) -> None:
-        log.error("emergency stop")
+        self._log.error("emergency stop")
         self._raise(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, "emergency stop")
 
     def _raise(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
@@ -521,7 +497,7 @@ class ServoLoop:
         if int(code) not in self.latches:
             latch = _Latch(Alarm(int(code), kind, description), self._cause_present(int(code)))
             self.latches[int(code)] = latch
-            log.error("alarm %s %s: %s", format_code(code), kind.value, description)
+            self._log.error("alarm %s %s: %s", format_code(code), kind.value, description)
             self._report(latch)
 
     def _stop_for(self, code: int, kind: AlarmType) -> None:
@@ -530,7 +506,7 @@ class ServoLoop:
             self._hold_where_it_is()
         if kind is AlarmType.FAULT and self.servo_on:
             self.servo_on = False
-            log.warning("servo off after the %s fault", format_code(code))
+            self._log.warning("servo off after the %s fault", format_code(code))
 
     def _report(self, latch: _Latch) -> None:
         report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value)
@@ -538,7 +514,7 @@ class ServoLoop:
         try:
             self._report_pub.put(codec.encode_message(ALARM_REPORT, report))
         except Exception as exc:  # a report that cannot be sent is sent again later
-            log.warning("could not report alarm %s to the monitor: %s", format_code(latch.alarm.code), exc)
+            self._log.warning("could not report alarm %s to the monitor: %s", format_code(latch.alarm.code), exc)
 
     def _report_latches(self) -> None:
         """Report every latch whose cause came or went, and again those not listed yet."""
@@ -567,7 +543,7 @@ class ServoLoop:
                 latch.acked = alarms.started
             elif latch.acked == alarms.started:
                 del self.latches[code]
-                log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
+                self._log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
             elif previous is not None and alarms.started != previous.started:
                 latch.acked = None  # a new monitor: tell it at once
                 latch.reported_at = -float("inf")
@@ -575,7 +551,7 @@ class ServoLoop:
         self.monitor_alarms = alarms.alarms
         for alarm in alarms.alarms:
             if alarm.code not in before and alarm.code not in self.latches:
-                log.warning("alarm %s %s from the alarm monitor: stopping the arm (%s)",
+                self._log.warning("alarm %s %s from the alarm monitor: stopping the arm (%s)",
                             format_code(alarm.code), alarm.type.value, alarm.description)
                 self._stop_for(alarm.code, alarm.type)
 
@@ -594,13 +570,13 @@ class ServoLoop:
             self._fifo.clear()
             self._interrupted = False
             self.servo_on = True
-            log.info("servo on")
+            self._log.info("servo on")
         return None
 
     def servo_off_now(self) -> None:
         if self.servo_on:
             self.servo_on = False
-            log.info("servo off")
+            self._log.info("servo off")
         self.brake()
 
     def clear_alarms_now(self) -> tuple[list[Alarm], list[Alarm]]:
@@ -615,7 +591,7 @@ class ServoLoop:
                 kept.append(latch.alarm)
             else:
                 cleared.append(self.latches.pop(code).alarm)
-                log.info("alarm %s cleared", format_code(code))
+                self._log.info("alarm %s cleared", format_code(code))
         return cleared, kept
 
     def _watch_monitor(self) -> None:
@@ -637,10 +613,10 @@ class ServoLoop:
                 beat = codec.decode_message(HEARTBEAT, sample.payload.to_bytes())
                 gap = watch.heard(now, beat.stuck, beat.leaving)
             except WireError as exc:
-                log.error("ignored a malformed heartbeat of the alarm monitor: %s", exc)
+                self._log.error("ignored a malformed heartbeat of the alarm monitor: %s", exc)
             else:
                 if gap is not None:
-                    log.warning(watch.stall_line(gap))
+                    self._log.warning(watch.stall_line(gap))
         if (now >= self._judge_monitor_after and AlarmCode.MONITOR_HUNG not in self.latches
                 and watch.hung(now)):
             why = watch.why_hung(now)
@@ -666,7 +642,7 @@ class ServoLoop:
         if self.alarmed:
             return "an alarm is active"
         self.soft_limits = limits
-        log.info("joint soft limits set: %s", [(lim.lower, lim.upper) for lim in limits])
+        self._log.info("joint soft limits set: %s", [(lim.lower, lim.upper) for lim in limits])
         return None
 
     # -- state and publishing -------------------------------------------------------
@@ -703,8 +679,8 @@ class ServoLoop:
             len(self._fifo), st.underruns, tuple(int(c) for c in hist))
         self._health_pub.put(codec.encode_message(messages.LOOP_HEALTH, msg))
         if st.waits:
-            log.info("servo loop: waited %d cycle(s) mid-motion for late commands (simulated "
+            self._log.info("servo loop: waited %d cycle(s) mid-motion for late commands (simulated "
                      "time stood still) instead of running dry", st.waits)
         if st.late + st.overruns > 0.01 * max(1, len(st.lateness)):  # the 1 % budget
-            log.warning("servo loop: %d of %d cycles late by more than one period, %d overruns, "
+            self._log.warning("servo loop: %d of %d cycles late by more than one period, %d overruns, "
                         "max lateness %.2f ms", st.late, len(st.lateness), st.overruns, lat.max() * 1e3)

@@ -1,0 +1,102 @@
+"""One real-time thread that runs the cycle of every arm of the servo process, every period.
+
+One thread for several arms, rather than one each: a 1 kHz Python loop spends
+most of its time waking up and warming its caches, so four arms cost a
+fraction of four threads (``docs/timing.md``, ``bench/soak.py``). The arms run
+in turn, in the order given, each in its own PyBullet world.
+
+The clock sleeps to each deadline; behind by more than a period it runs the
+cycles back to back (catching up), behind by more than ``RESYNC_AFTER`` it
+restarts its schedule. An arm that waits for a late command mid-motion (its
+simulated time stands still) restarts the schedule too, so that it does not
+then consume its commands faster than real time.
+
+A cycle that raises ends the thread (:attr:`failed`); the service then exits
+and the launcher restarts it, every arm of it.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+from collections.abc import Sequence
+
+from jara_arm.services.runtime.realtime import realtime_thread
+from jara_arm.services.runtime.timing import RESYNC_AFTER
+
+from .loop import ServoLoop
+
+log = logging.getLogger(__name__)
+
+#: SCHED_FIFO priority of the clock thread (Linux 1..99; 0 = normal scheduling).
+DEFAULT_RT_PRIORITY = 40
+#: Other threads of the servo process hand the GIL back to the clock this often [s].
+GIL_SWITCH_INTERVAL = 0.0005
+
+
+class ServoClockError(ValueError):
+    """The arms given cannot share one clock."""
+
+
+class ServoClock:
+    """Runs ``loops`` every period on one thread (see the module docstring)."""
+
+    def __init__(self, loops: Sequence[ServoLoop], realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
+        if not loops:
+            raise ServoClockError("a servo clock needs at least one arm")
+        periods = {loop.model.cmd_cycle_ms for loop in loops}
+        if len(periods) != 1:
+            raise ServoClockError("arms with different cmdCycle cannot share a servo process: "
+                                  + ", ".join(f"{loop.arm} {loop.model.cmd_cycle_ms} ms" for loop in loops))
+        self.loops = tuple(loops)
+        self.period_ns = periods.pop() * 1_000_000
+        self._rt_priority = realtime_priority
+        self._stop = threading.Event()
+        self.failed: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="servo-clock", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def _run(self) -> None:
+        realtime_thread(self._rt_priority, "servo clock")
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL)
+        period = self.period_ns
+        next_ns = time.monotonic_ns()
+        wall_offset = time.time_ns() - next_ns
+        for i, loop in enumerate(self.loops):
+            loop.begin(next_ns + wall_offset, i / len(self.loops))
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic_ns()
+                if now < next_ns:
+                    time.sleep((next_ns - now) * 1e-9)
+                    now = time.monotonic_ns()
+                lateness = now - next_ns
+                if lateness > RESYNC_AFTER * 1e9:
+                    log.warning("servo clock %.0f ms behind schedule; restarting it", lateness * 1e-6)
+                    next_ns = now
+                    wall_offset = time.time_ns() - now
+                behind = lateness > period
+                waited = False
+                for loop in self.loops:
+                    waited |= not loop.tick(next_ns + wall_offset, next_ns, behind)
+                if waited:
+                    # The late commands were not sent yet, not lost: no catching up on them.
+                    next_ns = now + period
+                    wall_offset = time.time_ns() - now
+                else:
+                    next_ns += period
+        except BaseException as exc:  # surfaced by main(): the service exits and is restarted
+            self.failed = exc
+            log.exception("servo clock failed")
