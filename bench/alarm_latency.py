@@ -8,8 +8,8 @@ cause to the alarm event received by this client [ms]: the e-stop put, the
 cycle the servo takes a command that jumps or could not stop before a joint
 soft limit, the servo's timestamp of the first feedback beyond the Cartesian
 box or of the first effort above the rating, the SIGKILL or SIGSTOP of a
-service. Hung-service figures include the heartbeat threshold ``HUNG_AFTER``
-(``services/alarm_monitor/detectors.py``).
+service. Hung-service figures include the hung bound ``Health.hung_after``
+(1.5 s with the ``same-host`` timing profile; ``services/runtime/timing.py``).
 """
 
 from __future__ import annotations
