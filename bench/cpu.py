@@ -65,23 +65,28 @@ def name_of(pid: int) -> str:
     return " ".join(argv[:3]) or str(pid)
 
 
-def tree(root: int) -> list[int]:
-    """``root`` and every process below it."""
-    seen, todo = [], [root]
+def tree(root: int) -> list[tuple[int, str]]:
+    """``root`` and every process below it, with their names; a helper process that is not
+    a service itself (the planner's planning process) is named after its parent."""
+    seen: list[tuple[int, str]] = []
+    todo = [(root, "")]
     while todo:
-        pid = todo.pop()
-        seen.append(pid)
-        todo += _children(pid)
+        pid, parent = todo.pop()
+        name = name_of(pid)
+        if parent and not any(name.startswith(k) for k in ("servo", "planner", "command", "alarm", "demo")):
+            name = f"{parent} child"
+        seen.append((pid, name))
+        todo += [(c, name) for c in _children(pid)]
     return seen
 
 
 def snapshot(roots: list[int]) -> dict[int, Sample]:
     out = {}
     for root in roots:
-        for pid in tree(root):
+        for pid, name in tree(root):
             t = _ticks(pid)
             if t is not None:
-                out[pid] = Sample(pid, name_of(pid), t)
+                out[pid] = Sample(pid, name, t)
     return out
 
 
