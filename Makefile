@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 ARGS   ?=
 PYTEST_ARGS ?=
 
-.PHONY: setup up test bench schema clean
+.PHONY: setup up test bench soak schema clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +30,14 @@ bench: setup
 	$(BIN)/python bench/alarm_latency.py --repeat 3
 	$(BIN)/python bench/motion.py
 	$(BIN)/python bench/ik.py
+	$(BIN)/python bench/load.py --seconds 30
+	$(BIN)/python bench/soak.py --arms 4 --minutes 2
+	$(BIN)/python bench/starts.py --runs 5
+
+# The proof of the "Fast and right" figures: every soak 10 minutes, quiet and with a CPU hog.
+soak: setup
+	for n in 1 2 4; do $(BIN)/python bench/soak.py --arms $$n --minutes 10 || exit 1; \
+	  $(BIN)/python bench/soak.py --arms $$n --minutes 10 --hog || exit 1; done
 
 schema: setup
 	$(BIN)/python -m jara_arm.schema.generate
