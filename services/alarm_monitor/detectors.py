@@ -26,15 +26,14 @@ Thresholds and margins (the README's "Alarms" table repeats them):
   command service is deleted after it was seen. The cause is present until the
   token is back (the launcher restarts the process).
 * hung (0x410-0x412, FAULT): the token is up, but the service's heartbeat
-  (``heartbeat/<service>``, every 5 ms from a real-time thread) has been
-  silent for longer than ``HUNG_AFTER`` (``services/runtime/heartbeat.py``: a process stopped or starved of the
-  CPU), or the heartbeat names a working loop of the service that missed its
-  deadline (``stuck``). Silence counts only while some other service's
-  heartbeat arrived within ``CORROBORATE``: that shows the way from the
-  services to the monitor works, so the silence is the service's own. When
-  every heartbeat is silent at once (the router, the network or the monitor's
-  input is held up, or all are hung), ``ALL_SILENT_AFTER`` applies instead.
-  The cause is present while the heartbeat is silent or names a stuck loop.
+  (``heartbeat/<service>``, every ``Health.heartbeat_period`` from a real-time
+  thread) has been silent for longer than ``Health.hung_after``
+  (``services/runtime/timing.py``: 1.5 s on one host; a process stopped,
+  deadlocked or starved so long it no longer serves), or the heartbeat names a
+  working loop of the service that has not turned for as long (``stuck``). A
+  shorter silence that ends is a stall: logged with its length, not an alarm
+  (``ServiceWatch.heard``). The cause is present while the heartbeat is silent
+  or names a stuck loop.
 """
 
 from __future__ import annotations

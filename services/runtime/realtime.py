@@ -1,7 +1,7 @@
 """Real-time scheduling (SCHED_FIFO) for the threads that must run within milliseconds.
 
 Needs CAP_SYS_NICE (or an RLIMIT_RTPRIO); without it the threads stay normal
-ones and the service says so once. Priorities of this project: servo loop 40 (its
+ones and the service says so once. Priorities of this project: servo clock 40 (its
 other threads 39), the launcher's router 35, planner streamer 30 (its other
 threads 29), alarm monitor 25, the command's heartbeat and Zenoh threads 20 (its
 own work 19).
