@@ -414,7 +414,8 @@ def test_driven_into_an_obstacle(arm: System):
     # Held where it stopped, not pushing: the effort falls back below the rating.
     arm.mark()
     time.sleep(0.2)
-    assert np.all(np.abs(np.array(arm.statuses()[-1].effort[:N])) < rating)
+    newest = wait_until(lambda: arm.statuses()[-1:], 1.0, 0.005, "a servo status")[-1]
+    assert np.all(np.abs(np.array(newest.effort[:N])) < rating)
     refused = arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.1,) + (0.0,) * (N - 1)})
     assert refused.id == ReturnCode.STATUS_ERR and "alarm" in refused.comment, refused
     check_back_to_work(arm, servo_on_needed=False)

@@ -81,6 +81,10 @@ class Rig:
             out.append(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
         return out
 
+    def newest_status(self, timeout: float = 2.0) -> messages.ServoStatus:
+        """The newest status, waiting for one (at rest the servo sends one every 100 ms)."""
+        return wait_until(lambda: self.drain_status() or None, timeout, what="a servo status")[-1]
+
     def wait_rest(self, timeout: float = 10.0) -> None:
         wait_until(lambda: not self.state() & StateBit.MOVING, timeout, what="the arm at rest")
 
@@ -158,8 +162,7 @@ def test_fifo_consumes_every_command_in_order_one_per_cycle(rig: Rig):
     q0 = rig.pos()
     path = min_jerk(q0, q0 + np.array([0.2, 0, 0, 0, 0, 0, 0]), 0.4)  # strictly rising J1
     n = len(path)
-    time.sleep(0.05)
-    before = rig.drain_status()[-1].consumed
+    before = rig.newest_status().consumed
     t0 = time.monotonic()
     for q in path:  # all at once: the FIFO must hold them
         rig.send(q)
@@ -198,7 +201,7 @@ def test_underrun_stops_smoothly(rig: Rig):
     assert np.abs(braking).max() < AMAX[0] * 1.5, np.abs(braking).max()  # within the limits
     overshoot = fb[-1] - path[-1, 0]
     assert 0 < overshoot < v**2 / (2 * AMAX[0]) * 2.0, overshoot  # stopped along the way, no jump back
-    assert rig.drain_status()[-1].underruns >= 1
+    assert rig.newest_status().underruns >= 1
     assert rig.state() == StateBit.SERVO_ON  # at rest, still on, no alarm
 
 
