@@ -17,6 +17,7 @@ and the launcher restarts it, every arm of it.
 
 from __future__ import annotations
 
+import gc
 import logging
 import sys
 import threading
@@ -34,6 +35,28 @@ log = logging.getLogger(__name__)
 DEFAULT_RT_PRIORITY = 40
 #: Other threads of the servo process hand the GIL back to the clock this often [s].
 GIL_SWITCH_INTERVAL = 0.0005
+
+
+#: A garbage collection in the servo process longer than this is logged [s]: it holds the clock.
+GC_PAUSE_LOGGED = 0.002
+
+
+class _GcWatch:
+    """Times the process's garbage collections (``gc.callbacks``) and logs the long ones."""
+
+    def __init__(self) -> None:
+        self._start = 0.0
+        self.longest = 0.0  # [s]
+
+    def __call__(self, phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            self._start = time.perf_counter()
+            return
+        pause = time.perf_counter() - self._start
+        if pause > GC_PAUSE_LOGGED:
+            self.longest = max(self.longest, pause)
+            log.warning("garbage collection (generation %d, %d objects collected) held the servo "
+                        "process %.1f ms", info.get("generation", -1), info.get("collected", 0), pause * 1e3)
 
 
 class ServoClockError(ValueError):
@@ -56,6 +79,7 @@ class ServoClock:
         self._stop = threading.Event()
         self.failed: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="servo-clock", daemon=True)
+        gc.callbacks.append(_GcWatch())
 
     def start(self) -> None:
         self._thread.start()
