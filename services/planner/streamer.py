@@ -160,8 +160,11 @@ class Streamer:
         The end of the last queued motion; when nothing is queued or running,
         the servo's held target (or our own last end if the servo holds there).
         """
+        newest = self._poll_status()  # not the engine's last poll: up to STREAMER_IDLE old
         with self._lock:
             now = time.time()
+            if newest is not None:
+                self._on_status(newest, now)
             st = self._status
             if st is None or now - self._status_at > STATUS_TIMEOUT:
                 raise PlanRefused(ReturnCode.STATUS_ERR, "no status from the servo: is it running?")
