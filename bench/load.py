@@ -75,12 +75,7 @@ def main() -> int:
                 alarms.append(f"0x{ev.alarm.code:02x} {ev.alarm.type.value}: {ev.alarm.description}")
 
         def on_health(s: zenoh.Sample) -> None:
-            h = codec.decode_message(messages.LOOP_HEALTH, s.payload.to_bytes())
-            tally.cycles += h.cycles
-            tally.late += h.lateCycles
-            tally.overruns += h.overruns
-            tally.underruns += h.underruns
-            tally.lateness_max = max(tally.lateness_max, h.latenessMax)
+            tally.add(codec.decode_message(messages.LOOP_HEALTH, s.payload.to_bytes()), time.monotonic())
 
         keys = ArmKeys(arm)
         subs = [session.declare_subscriber(keys.alarm, on_alarm),

@@ -53,6 +53,15 @@ class ArmTally:
     underruns: int = 0
     lateness_max: float = 0.0  # [s]
     windows: list[tuple[float, int, float]] = dataclasses.field(default_factory=list)  # (t [s], late, max [s])
+
+    def add(self, h: messages.LoopHealth, t: float) -> None:
+        """One ``Servo/health`` window, received ``t`` [s] after the start."""
+        self.cycles += h.cycles
+        self.late += h.lateCycles
+        self.overruns += h.overruns
+        self.underruns += h.underruns
+        self.lateness_max = max(self.lateness_max, h.latenessMax)
+        self.windows.append((t, h.lateCycles, h.latenessMax))
     motions: int = 0
     refused: list[str] = dataclasses.field(default_factory=list)
 
@@ -71,7 +80,6 @@ def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
         lim = m.hard_limits[i]
         centre = min(max(m.ready_pose[i], lim.lower + swing), lim.upper - swing)
         a[i], b[i] = centre - swing / 2, centre + swing / 2
-    grip = [m.gripper_limits.upper] if m.has_gripper else []
     return tuple(a), tuple(b)
 
 
@@ -149,13 +157,7 @@ def main() -> int:
 
         def on_health(s: zenoh.Sample) -> None:
             h = codec.decode_message(messages.LOOP_HEALTH, s.payload.to_bytes())
-            t = tallies[arm_of(str(s.key_expr))]
-            t.cycles += h.cycles
-            t.late += h.lateCycles
-            t.overruns += h.overruns
-            t.underruns += h.underruns
-            t.lateness_max = max(t.lateness_max, h.latenessMax)
-            t.windows.append((time.monotonic() - t_start, h.lateCycles, h.latenessMax))
+            tallies[arm_of(str(s.key_expr))].add(h, time.monotonic() - t_start)
 
         def on_log(s: zenoh.Sample) -> None:
             line, level = format_log(str(s.key_expr), s.payload.to_bytes())

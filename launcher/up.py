@@ -82,7 +82,7 @@ def children(service: ServiceSpec, settings: UpSettings) -> list[Child]:
 
     One servo process runs the cycles of every arm on one real-time thread:
     a 1 kHz Python loop costs mostly its wake-ups, so N arms on one thread cost
-    a fraction of N threads (docs/architecture decision in docs/timing.md). The
+    a fraction of N threads (docs/decisions.md, "Process layout"). The
     price: a servo process that crashes takes every arm's servo with it (each
     arm then raises 0x400, and the launcher restarts the process).
     """

@@ -51,6 +51,8 @@ def state_payload(view: StateView) -> bytes:
 #: GIL: held by a thread under the normal scheduler that a busy machine preempts, it
 #: silenced the heartbeat past the hung threshold (a false 0x412).
 DEFAULT_RT_PRIORITY = 20
+
+
 def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
          queue_capacity: int = DEFAULT_CAPACITY, servo_timeout: float = SERVO_TIMEOUT,
          plan_timeout: float = PLAN_TIMEOUT, realtime_priority: int = DEFAULT_RT_PRIORITY,

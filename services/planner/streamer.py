@@ -337,8 +337,8 @@ class Streamer:
                         self._last_done = self._inflight.popleft()[0]
                     progress = self._progress(now)
                     busy = self._active is not None or (self._queue and not self._paused)
-                for payload in out:
-                    self._publish(payload)
+                if out is not None:
+                    self._publish(out)
                 if low and now - last_late_log > 1.0:
                     log.warning("servo FIFO nearly empty mid-motion (%.1f commands estimated, %.1f ms "
                                 "since the streamer's previous round)", depth, gap * 1e3)
@@ -378,9 +378,9 @@ class Streamer:
                         f"{(now - st.tm.to_seconds()) * 1e3:.1f} ms old)")
         self._underruns = st.underruns
 
-    def _fill(self, now: float) -> list[bytes]:
+    def _fill(self, now: float) -> bytes | None:
         """The commands to send now to keep ``lead`` of them in the servo FIFO, as one
-        ``PositionBlock`` (lock held); [] if there is nothing to send."""
+        ``PositionBlock`` (lock held); None if there is nothing to send."""
         depth = self._fifo.depth(now)
         want = int(round(self.lead / self.period)) - int(depth)
         rows: list[list[float]] = []
@@ -391,7 +391,7 @@ class Streamer:
             self._busy_until = now + (depth + len(rows)) * self.period
             rows.append(q.tolist())
         self._fifo.sent(now, len(rows))
-        return [messages.position_block_payload(now + depth * self.period, rows)] if rows else []
+        return messages.position_block_payload(now + depth * self.period, rows) if rows else None
 
     def _next_sample(self, now: float) -> Joints | None:
         """The next command, advancing through segments and the queue; None when there is none."""

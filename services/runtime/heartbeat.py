@@ -159,7 +159,6 @@ class ServiceWatch:
     stuck: tuple[str, ...] = ()  # the newest heartbeat's stuck loops
     leaving: bool = False  # its newest heartbeat said it shuts down in order
     stalls: int = 0  # silences longer than health.stall_after that ended (the service beat again)
-    longest_stall: float = 0.0  # [s] the longest of them
 
     def token(self, up: bool, now: float) -> bool:
         """A liveliness change; True if the service was alive and is now gone (``leaving`` says
@@ -180,7 +179,6 @@ class ServiceWatch:
         self.leaving = leaving
         if gap > self.health.stall_after:
             self.stalls += 1
-            self.longest_stall = max(self.longest_stall, gap)
             return gap
         return None
 

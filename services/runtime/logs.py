@@ -43,7 +43,7 @@ class ZenohLogHandler(logging.Handler):
                  also: tuple[ArmKeys, ...] = ()) -> None:
         super().__init__()
         self._service = service
-        self._by_arm = {k.arm: session.declare_publisher(k.log(service)) for k in also}
+        self._by_arm = {k.arm: session.declare_publisher(k.log(service)) for k in also if k.arm != keys.arm}
         self._pending: collections.deque[logging.LogRecord] = collections.deque(maxlen=_QUEUE_LIMIT)
         self._wake = threading.Event()
         self._closed = False

@@ -72,8 +72,8 @@ def announce(session: zenoh.Session, keys: ArmKeys, service: Service) -> zenoh.L
 
     Everything set up so far (modules, models, worlds) lives as long as the
     process: it is moved out of the garbage collector's sight, so that a full
-    collection scans only what the service's loops allocate (a full scan of a
-    service with PyBullet or Pinocchio loaded held its loop up for milliseconds).
+    collection scans only what the service's loops allocate, not PyBullet's or
+    Pinocchio's modules as well.
     """
     gc.collect()
     gc.freeze()

@@ -46,7 +46,6 @@ class _GcWatch:
 
     def __init__(self) -> None:
         self._start = 0.0
-        self.longest = 0.0  # [s]
 
     def __call__(self, phase: str, info: dict[str, int]) -> None:
         if phase == "start":
@@ -54,7 +53,6 @@ class _GcWatch:
             return
         pause = time.perf_counter() - self._start
         if pause > GC_PAUSE_LOGGED:
-            self.longest = max(self.longest, pause)
             log.warning("garbage collection (generation %d, %d objects collected) held the servo "
                         "process %.1f ms", info.get("generation", -1), info.get("collected", 0), pause * 1e3)
 

@@ -40,7 +40,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
-from jara_arm.services.runtime.timing import (HEALTH_EVERY, RESYNC_AFTER, SAME_HOST, STATUS_EVERY,
+from jara_arm.services.runtime.timing import (HEALTH_EVERY, SAME_HOST, STATUS_EVERY,
                                               STATUS_EVERY_AT_REST, UNDERRUN_GRACE, Health)
 
 from .braking import Braking, Glide
@@ -651,7 +651,7 @@ class ServoLoop:
         if (self._braking is not None or self._fifo or self._cmd_moving
                 or max(vel) > REST_SPEED or min(vel) < -REST_SPEED):
             bits |= _MOVING
-        if self.latches or self.monitor_alarms:
+        if self.alarmed:
             bits |= _ALARM
         return bits
 
