@@ -101,6 +101,7 @@ class Recorded:
     cmd_t: np.ndarray  # [s] arrival time of each position command
     cmd: np.ndarray  # (N, dof) position commands
     fb: np.ndarray  # (M, dof) feedback
+    fb_tm: np.ndarray  # (M,) [s] the time each feedback sample stands for (a lost one leaves a gap)
     status: list[messages.ServoStatus]
 
 
@@ -198,9 +199,11 @@ class Rig:
     def drain(self) -> Recorded:
         with self._lock:
             cmds, self._cmds = self._cmds, []
-        fb = []
+        fb, fb_tm = [], []
         while (s := self._fb.try_recv()) is not None:
-            fb.append(codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()).pos)
+            sample = codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes())
+            fb.append(sample.pos)
+            fb_tm.append(sample.tm.to_seconds())
         status = []
         while (s := self._status.try_recv()) is not None:
             status.append(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
@@ -209,7 +212,7 @@ class Rig:
         cmd = [row for _, rows in blocks for row in rows]
         return Recorded(np.array([t for t, rows in blocks for _ in rows]),
                         np.array(cmd).reshape(-1, self.model.dof),
-                        np.array(fb).reshape(-1, self.model.dof), status)
+                        np.array(fb).reshape(-1, self.model.dof), np.array(fb_tm), status)
 
     def reset(self) -> None:
         """Servo on, nothing queued, arm at rest at the ready pose, recorders empty."""
@@ -329,12 +332,14 @@ class TestIiwa:
         assert int(np.argmax(speed >= v * (1 - 1e-6))) * DT == pytest.approx(acl, abs=2e-3)
         # Executed: the feedback moves as long as the commands do (same threshold on both).
 
-        def moving_span(x: np.ndarray) -> float:
+        def moving_span(x: np.ndarray, t: np.ndarray) -> float:
             moving = np.flatnonzero(np.abs(x - x[0]) > 1e-4)
             arrived = np.flatnonzero(np.abs(x - x[-1]) > 1e-4)
-            return (arrived[-1] - moving[0]) * DT
+            return t[arrived[-1]] - t[moving[0]]
 
-        assert moving_span(rec.fb[:, 0]) == pytest.approx(moving_span(rec.cmd[:, 0]), abs=0.01)
+        # The feedback by its own time stamps: a sample may be lost in transit (newest value wins).
+        cmd_t = np.arange(len(rec.cmd)) * DT
+        assert moving_span(rec.fb[:, 0], rec.fb_tm) == pytest.approx(moving_span(rec.cmd[:, 0], cmd_t), abs=0.01)
         assert time.time() - t0 < reply.duration + 2.0
 
     def test_relative_moves_compose_through_the_queue(self, rig: Rig):

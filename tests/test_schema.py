@@ -217,6 +217,46 @@ def test_position_block_payload_decodes_as_the_generic_message():
     assert codec.decode_message(messages.POSITION_BLOCK, generic) == block
 
 
+
+def test_fast_status_encoder_equals_the_generic_one():
+    st = messages.ServoStatus(Time(1_795_331_203, 250_143_514), True, False, True, 3, 10_001, 10_004, 2,
+                              (0.1, -0.2), (1.5, -30.25), (0.0, 1e-9), (LimitValue(2.9, -2.9), LimitValue(1.0, -1.5)),
+                              (0.01, 0.02))
+    assert messages.servo_status_payload(st) == codec.encode_message(messages.SERVO_STATUS, st)
+
+
+def test_fast_block_decoder_reads_what_the_generic_one_reads():
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        rows = rng.uniform(-4.0, 4.0, (int(rng.integers(1, 9)), 7)).tolist()
+        payload = messages.position_block_payload(1_795_331_203.25, rows)
+        generic = codec.decode_message(messages.POSITION_BLOCK, payload)
+        assert messages.position_block_rows(payload, 7).tolist() == [list(r) for r in generic.pos]
+
+
+@pytest.mark.parametrize("payload, field", [
+    (b"\xc1", "payload"),
+    (msgpack.packb([1, 2]), ""),
+    (msgpack.packb({"pos": [[0.0] * 7]}), "tm"),
+    (msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": [[0.0] * 6 + ["x"]]}), "pos"),
+    (msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": [[0.0] * 6 + [True]]}), "pos"),
+    (msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": [[0.0] * 6 + [float("nan")]]}), "pos"),
+    (msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": [0.0] * 7}), "pos"),
+])
+def test_fast_block_decoder_refuses_what_the_generic_one_refuses(payload, field):
+    with pytest.raises(WireError) as err:
+        messages.position_block_rows(payload, 7)
+    assert err.value.field == field
+    with pytest.raises(WireError):
+        codec.decode_message(messages.POSITION_BLOCK, payload)
+
+
+@pytest.mark.parametrize("rows", [[[0.0] * 6], [[0.0] * 7, [0.0] * 6], [[]]])
+def test_fast_block_decoder_refuses_rows_of_another_arm(rows):
+    with pytest.raises(WireError, match="7 axes") as err:
+        messages.position_block_rows(msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": rows}), 7)
+    assert err.value.field == "pos"
+
 def test_keys():
     k = keys.ArmKeys("arm-1_B")
     assert k.interface(Interface.MIDDLE, "movePTPJointAbs") == "JARA_ARM/arm-1_B/Middle/movePTPJointAbs"

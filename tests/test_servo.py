@@ -128,6 +128,18 @@ def j1_of(samples: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarr
     return np.array([t for t, _ in samples]), np.array([q[0] for _, q in samples])
 
 
+def velocity_and_acceleration(tm: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Differences of the feedback over one cycle only [per s, per s²]: a sample may be lost
+    in transit (newest value wins), and a difference over a gap is not the arm's. Where a
+    difference spans a gap it is NaN (``acc[i]`` is between ``vel[i]`` and ``vel[i + 1]``)."""
+    dt = np.diff(tm)
+    one = np.abs(dt - DT) < 0.25 * DT
+    vel = np.where(one, np.diff(q) / dt, np.nan)
+    acc = np.diff(vel) / dt[1:]  # NaN next to a gap
+    assert np.count_nonzero(np.isfinite(acc)) > 0.9 * len(acc), "too many feedback samples lost"
+    return vel, acc
+
+
 def min_jerk(q0: np.ndarray, q1: np.ndarray, duration: float) -> np.ndarray:
     n = int(round(duration / DT)) + 1
     u = np.linspace(0.0, 1.0, n)[:, None]
@@ -194,11 +206,10 @@ def test_underrun_stops_smoothly(rig: Rig):
     rig.stream(path)  # ends at full speed: the FIFO runs dry while moving
     rig.wait_rest()
     tm, fb = j1_of(rig.drain_timed_feedback())
-    vel = np.diff(fb) / np.diff(tm)  # tm: one period apart per cycle; a lost sample is a longer step
-    acc = np.diff(vel) / np.diff(tm)[1:]
-    assert np.abs(vel).max() <= v * 1.05
-    braking = acc[int(np.argmax(vel)):]  # from full speed to rest
-    assert np.abs(braking).max() < AMAX[0] * 1.5, np.abs(braking).max()  # within the limits
+    vel, acc = velocity_and_acceleration(tm, fb)
+    assert np.nanmax(np.abs(vel)) <= v * 1.05
+    braking = acc[int(np.nanargmax(vel)):]  # from full speed to rest
+    assert np.nanmax(np.abs(braking)) < AMAX[0] * 1.5, np.nanmax(np.abs(braking))  # within the limits
     overshoot = fb[-1] - path[-1, 0]
     assert 0 < overshoot < v**2 / (2 * AMAX[0]) * 2.0, overshoot  # stopped along the way, no jump back
     assert rig.newest_status().underruns >= 1
@@ -220,9 +231,8 @@ def test_emergency_stop(rig: Rig):
     assert rig.state() & StateBit.ALARM
     rig.wait_rest()
     tm, fb = j1_of(rig.drain_timed_feedback())
-    vel = np.diff(fb) / np.diff(tm)
-    acc = np.diff(vel) / np.diff(tm)[1:]
-    assert np.abs(acc).max() < AMAX[0] * 1.5  # a controlled stop: no jump
+    _, acc = velocity_and_acceleration(tm, fb)
+    assert np.nanmax(np.abs(acc)) < AMAX[0] * 1.5  # a controlled stop: no jump
     assert fb[-1] < path[-1, 0] - 0.1  # stopped short of the target
     held = rig.pos()
     for q in path[700:]:

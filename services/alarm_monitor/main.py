@@ -27,8 +27,11 @@ from .monitor import Monitor
 
 log = logging.getLogger("jara_arm.alarm_monitor")
 
-#: SCHED_FIFO priority of the monitor's threads: below the servo loop (40), above the planner (30).
-DEFAULT_RT_PRIORITY = 25  # below the planner streamer (30): feeding the servo FIFO comes first
+#: SCHED_FIFO priority of the monitor's threads; 0 (the default): the normal scheduler. Its
+#: work grows with the arms and the traffic, and every real-time thread of the machine
+#: shares one budget that the servo clock needs (``docs/timing.md``, "Real-time budget");
+#: what must act within cycles is decided inside the servo.
+DEFAULT_RT_PRIORITY = 0
 
 
 class MonitorCommon:

@@ -3,8 +3,9 @@
 Needs CAP_SYS_NICE (or an RLIMIT_RTPRIO); without it the threads stay normal
 ones and the service says so once. Priorities of this project: servo clock 40 (its
 other threads 39), the launcher's router 35, planner streamer 30 (its other
-threads 29), alarm monitor 25, the command's heartbeat and Zenoh threads 20 (its
-own work 19).
+threads 29); the alarm monitor and the command run under the normal scheduler
+(``docs/timing.md``, "Real-time budget": every real-time thread of the machine
+shares one budget, and the kernel stops them all once it is spent).
 """
 
 from __future__ import annotations

@@ -128,6 +128,12 @@ class ServoLoop:
         self._jmax = self._amax / BRAKE_JERK_TIME
         self._limit_amax = self._amax * LIMIT_STOP_ACCEL
         self._limit_jmax = self._limit_amax / BRAKE_JERK_TIME
+        self._step_max = self._vmax * self.dt * OVERSPEED_MARGIN  # [rad or m] per cycle
+        self._per_cycle = 1.0 / self.dt  # [1/s]
+        # Stopping distance bound (_overruns_soft_limit) = (v + a·T)·((v + a·T)/(2a) + 2T).
+        arm_amax = self._limit_amax[:model.axis_num]
+        self._reach_at = arm_amax * BRAKE_JERK_TIME
+        self._reach_half_inv_a = 0.5 / arm_amax
         grip = model.gripper_limits
         self._hard = list(model.hard_limits) + ([grip] if grip else [])
         self.soft_limits = model.hard_limits
@@ -172,6 +178,9 @@ class ServoLoop:
         self._judge_monitor_after = 0.0  # [s] monotonic: the monitor's silence counts from then on
         self._report_pub = session.declare_publisher(keys.monitor_report, express=True)
         self._fb_pub = session.declare_publisher(keys.pos_feedback, express=True)
+        # The 1 kHz feedback is encoded only while someone subscribes (none of our services do).
+        self._fb_matching = self._fb_pub.declare_matching_listener(zenoh.handlers.FifoChannel(64))
+        self._fb_wanted = self._fb_pub.matching_status.matching
         self._status_pub = session.declare_publisher(keys.servo_status, express=True)
         self._health_pub = session.declare_publisher(keys.servo_health)
         self._stats = _Stats()
@@ -184,7 +193,7 @@ class ServoLoop:
     def close(self) -> None:
         """Undeclare everything; call it once the clock has stopped."""
         self._alarm_copy.close()
-        for entity in (self._monitor_token, self._monitor_beats, self._cmd_sub, self._block_sub, self._estop_sub,
+        for entity in (self._fb_matching, self._monitor_token, self._monitor_beats, self._cmd_sub, self._block_sub, self._estop_sub,
                        self._alarms_sub, self._report_pub, self._fb_pub,
                        self._status_pub, self._health_pub):
             try:
@@ -204,6 +213,10 @@ class ServoLoop:
         self._soft_lower = np.array([lim.lower for lim in limits])
         self._soft_upper = np.array([lim.upper for lim in limits])
         self._soft_limits = limits
+        # The same bounds for a whole command; the gripper axis is clamped, not checked.
+        free = [np.inf] * (self.model.dof - len(limits))
+        self._cmd_lower = np.array([lim.lower for lim in limits] + [-x for x in free])
+        self._cmd_upper = np.array([lim.upper for lim in limits] + free)
 
     @property
     def alarmed(self) -> bool:
@@ -298,10 +311,13 @@ class ServoLoop:
             self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
             self._pos_list, self._vel_list = pos.tolist(), vel.tolist()
             self.state_bits = self._bits(self._vel_list)
-            self._still_for = 0 if self.state_bits & StateBit.MOVING else self._still_for + 1
+            self._still_for = 0 if self.state_bits & _MOVING else self._still_for + 1
         else:  # settled: the world is held as it is (SETTLED_CYCLES)
             self.state_bits = self._bits(self._vel_list)
-        self._fb_pub.put(messages.timed_joint_pos_payload(tm_ns, self._pos_list))
+        while (matching := self._fb_matching.try_recv()) is not None:
+            self._fb_wanted = matching.matching
+        if self._fb_wanted:
+            self._fb_pub.put(messages.timed_joint_pos_payload(tm_ns, self._pos_list))
         if self.latches:  # every cycle: the monitor learns at once that a cause has gone
             self._report_latches()
         if (k - self._status_k >= (STATUS_EVERY_AT_REST if settled else STATUS_EVERY)
@@ -329,11 +345,8 @@ class ServoLoop:
             self._fifo.append(np.array(msg.pos))
         while (sample := self._block_sub.try_recv()) is not None:
             try:
-                block = codec.decode_message(messages.POSITION_BLOCK, sample.payload.to_bytes())
-                rows = np.array(block.pos, dtype=float)
-                if rows.ndim != 2 or rows.shape[1] != self.model.dof:
-                    raise WireError("pos", f"expected rows of {self.model.dof} axes, got shape {rows.shape}")
-            except (WireError, ValueError) as exc:
+                rows = messages.position_block_rows(sample.payload.to_bytes(), self.model.dof)
+            except WireError as exc:
                 self.dropped += 1
                 self._log.warning("dropped a malformed position block: %s", exc)
                 continue
@@ -406,7 +419,17 @@ class ServoLoop:
 
     def _follow(self, cmd: np.ndarray) -> None:
         step = cmd - self.q
-        too_fast = np.abs(step) > self._vmax * self.dt * OVERSPEED_MARGIN
+        if not self._interrupted and ((cmd >= self._cmd_lower) & (cmd <= self._cmd_upper)
+                                      & (np.abs(step) <= self._step_max)).all():
+            # Every check below passes (a NaN fails every comparison): the usual command, in
+            # a fraction of the work. Only the stop before a soft limit is left to check.
+            if self.model.has_gripper:
+                axis = self.model.axis_num
+                g = self._hard[axis]
+                cmd[axis] = min(max(cmd[axis], g.lower), g.upper)
+            self._apply(cmd, step)
+            return
+        too_fast = np.abs(step) > self._step_max
         if self._interrupted:
             # After a stop for a stream that ran dry, only a stream that starts again from
             # rest where the arm stopped is followed: joining a moving stream halfway would
@@ -436,8 +459,12 @@ class ServoLoop:
                         f"position command asks J{i + 1} for {abs(step[i]) / self.dt:.3g} per s, "
                         f"above {OVERSPEED_MARGIN:g} x its rated {self._vmax[i]:.3g}; not applied")
             return
-        qd = step / self.dt
-        qdd = (qd - self.qd) / self.dt
+        self._apply(cmd, step)
+
+    def _apply(self, cmd: np.ndarray, step: np.ndarray) -> None:
+        """Follow ``cmd``, which passed every check but the stop before a soft limit."""
+        qd = step * self._per_cycle
+        qdd = (qd - self.qd) * self._per_cycle
         i = self._overruns_soft_limit(cmd, qd, qdd)
         if i is not None:
             lim = self.soft_limits[i]
@@ -462,11 +489,12 @@ class ServoLoop:
         """
         n = self.model.axis_num
         lower, upper = self._soft_lower, self._soft_upper
-        v, a = np.abs(qd[:n]), self._limit_amax[:n]
-        reach = (v + a * BRAKE_JERK_TIME) ** 2 / (2 * a) + 2 * BRAKE_JERK_TIME * (v + a * BRAKE_JERK_TIME)
-        near = np.flatnonzero((q[:n] + reach > upper) | (q[:n] - reach < lower))
-        if near.size == 0:
+        va = np.abs(qd[:n]) + self._reach_at
+        reach = va * (va * self._reach_half_inv_a + 2 * BRAKE_JERK_TIME)
+        qn = q[:n]
+        if not ((qn + reach > upper) | (qn - reach < lower)).any():
             return None
+        near = np.flatnonzero((qn + reach > upper) | (qn - reach < lower))
         # Unsynchronized: every axis stops on its own, so only the near ones need computing.
         low, high = Braking(q[near], qd[near], qdd[near], self._limit_amax[near], self._limit_jmax[near],
                             self.dt, synchronized=False).extrema()
@@ -663,11 +691,11 @@ class ServoLoop:
         self._status_said = (self.state_bits, len(self._fifo), self.soft_limits)
         self._status_q = self.q
         st = messages.ServoStatus(
-            tm, self.servo_on, bool(self.state_bits & StateBit.MOVING), self.alarmed,
+            tm, self.servo_on, bool(self.state_bits & _MOVING), self.alarmed,
             len(self._fifo), self.consumed, self.received, self.underruns,
             tuple(self.fb_vel.tolist()), tuple(self.fb_eff.tolist()), tuple(self.q.tolist()),
             self.soft_limits, tuple(self.fb_pos.tolist()))
-        self._status_pub.put(codec.encode_message(messages.SERVO_STATUS, st))
+        self._status_pub.put(messages.servo_status_payload(st))
 
     def _publish_health(self) -> None:
         st, self._stats = self._stats, _Stats()

@@ -42,7 +42,9 @@ class World:
         self._grip = [index[n] for n in model.gripper_joints]
         # Wire axis k drives these PyBullet joints (the gripper axis drives all fingers).
         self._joints = self._arm + self._grip
-        self._axis_of_joint = list(range(model.axis_num)) + [model.axis_num] * len(self._grip)
+        self._axis_of_joint = np.array(list(range(model.axis_num)) + [model.axis_num] * len(self._grip))
+        self._position_gains = [POSITION_GAIN] * len(self._joints)
+        self._velocity_gains = [VELOCITY_GAIN] * len(self._joints)
         self._measured = self._arm + self._grip[:1]  # one joint per wire axis
         self._forces = [PEAK_EFFORT * f for f in
                         list(model.rated_effort) + [model.gripper_effort] * len(self._grip)]
@@ -73,9 +75,9 @@ class World:
         k = self._axis_of_joint
         pybullet.setJointMotorControlArray(
             self.robot, self._joints, pybullet.POSITION_CONTROL,
-            targetPositions=[float(q[i]) for i in k], targetVelocities=[float(qd[i]) for i in k],
-            forces=self._forces, positionGains=[POSITION_GAIN] * len(k),
-            velocityGains=[VELOCITY_GAIN] * len(k), physicsClientId=self._pb)
+            targetPositions=q[k].tolist(), targetVelocities=qd[k].tolist(),
+            forces=self._forces, positionGains=self._position_gains,
+            velocityGains=self._velocity_gains, physicsClientId=self._pb)
 
     def step(self) -> None:
         pybullet.stepSimulation(physicsClientId=self._pb)
@@ -83,8 +85,8 @@ class World:
     def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Measured (position, velocity, effort) per wire axis; the gripper axis is finger 1."""
         states = pybullet.getJointStates(self.robot, self._measured, physicsClientId=self._pb)
-        pos, vel, _reaction, eff = (np.array(c) for c in zip(*states))
-        return pos, vel, eff
+        return (np.array([s[0] for s in states]), np.array([s[1] for s in states]),
+                np.array([s[3] for s in states]))
 
     def close(self) -> None:
         try:
