@@ -1,9 +1,12 @@
 """``ManipulatorCommonInterface_Common`` of the middle level, one method per IDL operation.
 
-Everything the low level owns (servo power, joint feedback, joint soft limits,
-manipulator information) is passed through to the servo's
-``Servo/Common/<op>``, so that the two levels never disagree: the reply is the
-servo's, decoded and re-encoded through the schema. The alarms are the alarm
+Everything the low level owns (servo power, joint soft limits, manipulator
+information) is passed through to the servo's ``Servo/Common/<op>``, so that
+the two levels never disagree: the reply is the servo's, decoded and
+re-encoded through the schema. The joint feedback is the newest one the servo
+published in its status (``feedback.py``), as for ``getFeedbackPosCartesian``:
+clients may ask it as fast as they can, and the servo process, whose clock
+shares one GIL with its query thread, must not pay for that. The alarms are the alarm
 monitor's: ``getActiveAlarm`` and ``clearAlarms`` go to ``Monitor/Common/<op>``
 (as the servo's own do), and to the servo when the monitor does not answer.
 ``getState`` is the command's own (``state.py``): it adds the queue and the
@@ -22,6 +25,7 @@ from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.rpc import ok, refuse
 
 from .core import Core, with_note
+from .feedback import JointFeedback
 
 log = logging.getLogger(__name__)
 
@@ -29,8 +33,9 @@ log = logging.getLogger(__name__)
 class CommandCommon:
     """The Common interface at ``JARA_ARM/<arm>/Common/<op>``."""
 
-    def __init__(self, core: Core) -> None:
+    def __init__(self, core: Core, feedback: JointFeedback) -> None:
         self.core = core
+        self._feedback = feedback
 
     def clearAlarms(self) -> Reply:
         core = self.core
@@ -53,7 +58,7 @@ class CommandCommon:
         return reply if reply is not None else self.core.servo.call(OP.getActiveAlarm)
 
     def getFeedbackPosJoint(self) -> Reply:
-        return self.core.servo.call(OP.getFeedbackPosJoint)
+        return self._feedback.joints()
 
     def getManipInfo(self) -> Reply:
         return self.core.servo.call(OP.getManipInfo)

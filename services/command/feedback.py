@@ -1,4 +1,4 @@
-"""The newest measured joints, for ``getFeedbackPosCartesian``.
+"""The newest measured joints, for ``getFeedbackPosJoint`` and ``getFeedbackPosCartesian``.
 
 They come from ``Servo/status`` (every 10 servo cycles), which the state
 watcher receives anyway: ``Servo/posFeedback`` (every cycle) would cost this

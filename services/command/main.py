@@ -79,7 +79,7 @@ def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
         settings = Settings.defaults(robot, reach(cartesian.kinematics))
         settings_pub = SettingsPublisher(session, keys, tracker, robot, settings)
         settings_pub.republish()
-        common = InterfaceServer(session, keys.interface(Interface.COMMON), COMMON, CommandCommon(core),
+        common = InterfaceServer(session, keys.interface(Interface.COMMON), COMMON, CommandCommon(core, feedback),
                                  "command-common")
         middle = InterfaceServer(session, keys.interface(Interface.MIDDLE), MIDDLE,
                                  CommandMiddle(core, settings, feedback, cartesian, settings_pub.changed),
