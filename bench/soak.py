@@ -22,6 +22,7 @@ import dataclasses
 import json
 import multiprocessing
 import os
+import re
 import sys
 import threading
 import time
@@ -64,6 +65,25 @@ class ArmTally:
         self.windows.append((t, h.lateCycles, h.latenessMax))
     motions: int = 0
     refused: list[str] = dataclasses.field(default_factory=list)
+
+
+#: A watcher's stall line: "the <service> service was silent for <N> ms and is back".
+_SILENCE = re.compile(r"was silent for (\d+) ms")
+
+
+def steal_ticks() -> int:
+    """The machine's CPU time taken by its hypervisor so far [USER_HZ ticks] (``/proc/stat``)."""
+    with open("/proc/stat") as f:
+        return int(f.readline().split()[8])
+
+
+def record_steal(samples: list[tuple[float, int]], t0: float, stop: threading.Event) -> None:
+    """Every second, (s since ``t0``, steal ticks): a stalled VM stalls every loop in it."""
+    last = steal_ticks()
+    while not stop.wait(1.0):
+        now = steal_ticks()
+        samples.append((time.monotonic() - t0, now - last))
+        last = now
 
 
 def hog() -> None:  # pragma: no cover - runs in its own process
@@ -138,7 +158,8 @@ def main() -> int:
     arm_ids = [f"a{i}" for i in range(args.arms)]
     tallies = {a: ArmTally() for a in arm_ids}
     alarms: list[str] = []
-    stalls: collections.Counter[str] = collections.Counter()
+    stalls: collections.Counter[str] = collections.Counter()  # silences logged by the arm's watchers
+    longest: collections.Counter[str] = collections.Counter()  # [ms] the longest of them
     warnings: list[str] = []
     hogs: list[multiprocessing.Process] = []
     ctx = multiprocessing.get_context("spawn")
@@ -163,8 +184,10 @@ def main() -> int:
             line, level = format_log(str(s.key_expr), s.payload.to_bytes())
             if level >= 30:
                 warnings.append(line)
-                if "was silent for" in line:
-                    stalls[arm_of(str(s.key_expr))] += 1
+                if (m := _SILENCE.search(line)) is not None:
+                    arm = arm_of(str(s.key_expr))
+                    stalls[arm] += 1
+                    longest[arm] = max(longest[arm], int(m.group(1)))
 
         # Callbacks only append to lists: no work, no blocking.
         subs = [session.declare_subscriber(any_arm_alarm(), on_alarm),
@@ -178,6 +201,10 @@ def main() -> int:
         until = time.monotonic() + args.minutes * 60.0
         cpu_before = cpu.snapshot(roots)
         t0 = time.monotonic()
+        steal: list[tuple[float, int]] = []
+        steal_stop = threading.Event()
+        steal_thread = threading.Thread(target=record_steal, args=(steal, t_start, steal_stop), daemon=True)
+        steal_thread.start()
         drivers = [threading.Thread(target=drive, args=(ArmClient(session, a), args.robot, until, tallies[a], stop))
                    for a in arm_ids]
         for d in drivers:
@@ -186,6 +213,8 @@ def main() -> int:
             d.join()
         cpu_after = cpu.snapshot(roots)
         wall = time.monotonic() - t0
+        steal_stop.set()
+        steal_thread.join()
         for h in hogs:
             h.terminate()
         for sub in subs:
@@ -197,15 +226,20 @@ def main() -> int:
     print(f"soak: {args.arms} arm(s) of {args.robot}, {wall / 60:.1f} min, hog {'on' if args.hog else 'off'}, "
           f"timing {args.timing}; ready after {ready_after:.1f} s")
     print(f"{'arm':<5} {'cycles':>8} {'late>1T':>8} {'late %':>8} {'max ms':>7} {'overrun':>8} "
-          f"{'underrun':>8} {'motions':>8} {'refused':>8} {'stalls':>7}")
+          f"{'underrun':>8} {'motions':>8} {'refused':>8} {'stalls':>7} {'longest':>8}")
     for a, t in tallies.items():
         pct = 100.0 * t.late / max(1, t.cycles)
         print(f"{a:<5} {t.cycles:>8} {t.late:>8} {pct:>8.3f} {t.lateness_max * 1e3:>7.2f} {t.overruns:>8} "
-              f"{t.underruns:>8} {t.motions:>8} {len(t.refused):>8} {stalls[a]:>7}")
-    print("worst one-second windows (s after start: late cycles, max lateness):")
+              f"{t.underruns:>8} {t.motions:>8} {len(t.refused):>8} {stalls[a]:>7} {longest[a]:>6} ms")
+    stolen = dict((round(t), ticks) for t, ticks in steal)
+    print("worst one-second windows (s after start: late cycles, max lateness, VM steal in that second):")
     for a, t in tallies.items():
         worst = sorted(t.windows, key=lambda w: -w[1])[:5]
-        print(f"  {a}: " + "; ".join(f"{w[0]:.0f} s: {w[1]}, {w[2] * 1e3:.1f} ms" for w in worst))
+        print(f"  {a}: " + "; ".join(f"{w[0]:.0f} s: {w[1]}, {w[2] * 1e3:.1f} ms, "
+                                    f"{stolen.get(round(w[0]), 0) * 1000 // cpu._TICK} ms" for w in worst))
+    total_steal = sum(ticks for _, ticks in steal) / cpu._TICK
+    print(f"VM steal (CPU time the hypervisor gave elsewhere): {total_steal:.1f} s over the soak, "
+          f"{100 * total_steal / (wall * (os.cpu_count() or 1)):.2f} % of the CPUs")
     print(cpu.table(shares))
     print(f"alarms raised: {len(alarms)}")
     for line in alarms:
@@ -220,8 +254,9 @@ def main() -> int:
         Path(args.json).write_text(json.dumps({
             "arms": args.arms, "minutes": wall / 60, "hog": args.hog, "timing": args.timing,
             "ready_after_s": ready_after, "alarms": alarms, "warnings": len(warnings),
-            "per_arm": {a: dataclasses.asdict(t) | {"stalls": stalls[a]} for a, t in tallies.items()},
-            "cpu": shares}, indent=1))
+            "per_arm": {a: dataclasses.asdict(t) | {"stalls": stalls[a], "longest_stall_ms": longest[a]}
+                        for a, t in tallies.items()},
+            "cpu": shares, "steal_s": total_steal}, indent=1))
     failed = bool(alarms) or any(t.refused for t in tallies.values())
     return 1 if failed else 0
 

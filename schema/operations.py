@@ -12,6 +12,7 @@ import dataclasses
 import enum
 from collections.abc import Mapping
 from types import MappingProxyType
+from typing import Final
 
 from . import wire_types as w
 from .errors import UnknownOperationError
@@ -152,13 +153,59 @@ def operation(interface: Interface, name: str) -> Operation:
         raise UnknownOperationError(interface.value, name, list(table)) from None
 
 
-class _Ops:
-    """Attribute access to operation names (``OP.movePTPJointAbs``), checked at import."""
+class OP:
+    """The operation names, spelled out so that editors and type checkers follow them
+    (``OP.movePTPJointAbs == "movePTPJointAbs"``); code names operations through these,
+    never with string literals. Checked against the tables at import."""
 
-    def __init__(self, ops: tuple[Operation, ...]) -> None:
-        for op in ops:
-            setattr(self, op.name, op.name)
+    # Common
+    clearAlarms: Final = "clearAlarms"
+    getActiveAlarm: Final = "getActiveAlarm"
+    getFeedbackPosJoint: Final = "getFeedbackPosJoint"
+    getManipInfo: Final = "getManipInfo"
+    getSoftLimitJoint: Final = "getSoftLimitJoint"
+    getState: Final = "getState"
+    servoOFF: Final = "servoOFF"
+    servoON: Final = "servoON"
+    setSoftLimitJoint: Final = "setSoftLimitJoint"
+    # Middle
+    closeGripper: Final = "closeGripper"
+    getBaseOffset: Final = "getBaseOffset"
+    getFeedbackPosCartesian: Final = "getFeedbackPosCartesian"
+    getMaxSpeedCartesian: Final = "getMaxSpeedCartesian"
+    getMaxSpeedJoint: Final = "getMaxSpeedJoint"
+    getMinAccelTimeCartesian: Final = "getMinAccelTimeCartesian"
+    getMinAccelTimeJoint: Final = "getMinAccelTimeJoint"
+    getSoftLimitCartesian: Final = "getSoftLimitCartesian"
+    moveGripper: Final = "moveGripper"
+    moveLinearCartesianAbs: Final = "moveLinearCartesianAbs"
+    moveLinearCartesianRel: Final = "moveLinearCartesianRel"
+    movePTPCartesianAbs: Final = "movePTPCartesianAbs"
+    movePTPCartesianRel: Final = "movePTPCartesianRel"
+    movePTPJointAbs: Final = "movePTPJointAbs"
+    movePTPJointRel: Final = "movePTPJointRel"
+    openGripper: Final = "openGripper"
+    pause: Final = "pause"
+    resume: Final = "resume"
+    stop: Final = "stop"
+    setAccelTimeCartesian: Final = "setAccelTimeCartesian"
+    setAccelTimeJoint: Final = "setAccelTimeJoint"
+    setBaseOffset: Final = "setBaseOffset"
+    setControlPointOffset: Final = "setControlPointOffset"
+    setMaxSpeedCartesian: Final = "setMaxSpeedCartesian"
+    setMaxSpeedJoint: Final = "setMaxSpeedJoint"
+    setMinAccelTimeCartesian: Final = "setMinAccelTimeCartesian"
+    setMinAccelTimeJoint: Final = "setMinAccelTimeJoint"
+    setSoftLimitCartesian: Final = "setSoftLimitCartesian"
+    setSpeedCartesian: Final = "setSpeedCartesian"
+    setSpeedJoint: Final = "setSpeedJoint"
+    moveCircularCartesianAbs: Final = "moveCircularCartesianAbs"
+    moveCircularCartesianRel: Final = "moveCircularCartesianRel"
+    setHome: Final = "setHome"
+    getHome: Final = "getHome"
+    goHome: Final = "goHome"
 
 
-#: ``OP.getState == "getState"``: lets code name operations without string literals.
-OP = _Ops(ALL)
+_spelled = {name for name in vars(OP) if not name.startswith("_")}
+if _spelled != {op.name for op in ALL}:  # a table and this list disagree: fail at import
+    raise ImportError(f"OP and the operation tables differ: {sorted(_spelled ^ {op.name for op in ALL})}")

@@ -17,13 +17,30 @@ import time
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from jara_arm.launcher.client import ArmClient
 from jara_arm.schema import codec
+from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding
 from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.types import CarPosWithElbow
 from jara_arm.services.runtime.zenoh_args import zenoh_config
+
+
+def pose(p: Any, R: np.ndarray | None = None) -> np.ndarray:
+    """The 4x4 transform at position ``p`` [m] with rotation ``R`` (default: none)."""
+    T = np.eye(4)
+    T[:3, 3] = p
+    if R is not None:
+        T[:3, :3] = R
+    return T
+
+
+def car(T: np.ndarray, elbow: float = 0.0) -> dict:
+    """A ``CarPosWithElbow`` argument in wire form: pose ``T`` [m], ``elbow`` [rad]."""
+    return w.CAR_POS_WITH_ELBOW.encode(CarPosWithElbow(T[:3].copy(), elbow, 0))
 
 
 def free_port() -> int:

@@ -41,7 +41,7 @@ from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
 from jara_arm.services.runtime.timing import SAME_HOST
 from jara_arm.services.planner.kinematics import Kinematics
-from jara_arm.services.servo.loop import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
+from jara_arm.services.servo.control import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
 from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
 

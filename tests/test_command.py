@@ -1,9 +1,8 @@
-"""The command service as a real process, against the real servo (and the real planner once it exists).
+"""The command service as a real process, against the real servo and the real planner.
 
 Two rigs share one in-process Zenoh router, each started once for the module:
 
-* ``arm0``: servo + command (+ planner, when ``jara_arm.services.planner.main``
-  exists; only the tests that need it are skipped otherwise);
+* ``arm0``: servo + command + planner;
 * ``fake``: a command process whose servo and planner are played by this test
   (``FakePeers``), to see exactly what the command sends the planner (the
   settings snapshot of every motion) and how it keeps its queue and state from
@@ -13,7 +12,6 @@ Two rigs share one in-process Zenoh router, each started once for the module:
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
 import sys
 import threading
@@ -47,8 +45,6 @@ IIWA = robot("iiwa")
 N = IIWA.axis_num
 OK, NG = ReturnCode.OK, ReturnCode.NG
 VALUE_ERR, STATUS_ERR = ReturnCode.VALUE_ERR, ReturnCode.STATUS_ERR
-HAVE_PLANNER = importlib.util.find_spec("jara_arm.services.planner.main") is not None
-needs_planner = pytest.mark.skipif(not HAVE_PLANNER, reason="services/planner/main.py does not exist yet")
 FAKE_PLAN_TIMEOUT = 0.5  # [s] --plan-timeout of the fake rig's command
 
 
@@ -171,10 +167,9 @@ class Rigs:
         self.fake_peers = FakePeers(self.router, "fake")
         servo = self._start(Service.SERVO, "arm0")
         command = self._start(Service.COMMAND, "arm0")
-        self.planner_proc = self._start(Service.PLANNER, "arm0") if HAVE_PLANNER else None
+        self.planner_proc = self._start(Service.PLANNER, "arm0")
         fake = self._start(Service.COMMAND, "fake", "--plan-timeout", str(FAKE_PLAN_TIMEOUT))
-        wait_alive(self.router, "arm0", [Service.SERVO, Service.COMMAND]
-                   + ([Service.PLANNER] if HAVE_PLANNER else []), timeout=60)
+        wait_alive(self.router, "arm0", [Service.SERVO, Service.COMMAND, Service.PLANNER], timeout=60)
         wait_alive(self.router, "fake", [Service.COMMAND], timeout=60)
         self.servo_proc = servo
         self.real = Rig(self.router, "arm0", command)
@@ -742,7 +737,6 @@ def slow_motions(real: Rig, count: int) -> list[Reply]:
     return out
 
 
-@needs_planner
 def test_real_queue_full_on_the_33rd_motion_and_stop_discards(real: Rig):
     replies = slow_motions(real, 33)
     assert [r.id for r in replies[:32]] == [OK] * 32, (replies, real.planner_log())
@@ -753,7 +747,6 @@ def test_real_queue_full_on_the_33rd_motion_and_stop_discards(real: Rig):
     wait_until(lambda: real.state() == StateBit.SERVO_ON, 10, what="at rest with an empty queue")
 
 
-@needs_planner
 def test_real_pause_sets_the_paused_bit(real: Rig):
     assert [r.id for r in slow_motions(real, 2)] == [OK, OK], real.planner_log()
     wait_until(lambda: real.state() & StateBit.MOVING, 2, what="moving")

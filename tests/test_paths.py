@@ -18,13 +18,7 @@ from jara_arm.services.planner.paths import (
     PathGeometryError,
 )
 
-
-def pose(p, R=None) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, 3] = p
-    if R is not None:
-        T[:3, :3] = R
-    return T
+from .support import pose
 
 
 def random_rotation(rng: np.random.Generator) -> np.ndarray:

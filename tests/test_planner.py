@@ -44,7 +44,7 @@ from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 from jara_arm.services.planner.servo_fifo import FifoEstimate
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import Client, Proc, endpoint, free_port, service_argv, wait_alive, wait_until
+from .support import Client, Proc, car, endpoint, free_port, pose, service_argv, wait_alive, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 DT = 1e-3
@@ -53,22 +53,9 @@ PLANNED_TOL = 1e-6  # [m] commanded path (FK of posCmd) vs the ideal path
 _ids = itertools.count(1)
 
 
-def pose(p: Any, R: np.ndarray | None = None) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, 3] = p
-    if R is not None:
-        T[:3, :3] = R
-    return T
-
-
 def rot_z(a: float) -> np.ndarray:
     c, s = np.cos(a), np.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def car(T: np.ndarray, elbow: float = 0.0) -> dict:
-    """A ``CarPosWithElbow`` argument in wire form."""
-    return w.CAR_POS_WITH_ELBOW.encode(CarPosWithElbow(T[:3].copy(), elbow, 0))
 
 
 def cycles(duration: float) -> int:

@@ -23,16 +23,10 @@ from jara_arm.services.planner.profile import (
     stop_profile,
 )
 
+from .support import pose
+
 DT = 1e-3  # [s] servo period
 REL = 1e-9  # relative tolerance on limits
-
-
-def pose(p, R=None) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, 3] = p
-    if R is not None:
-        T[:3, :3] = R
-    return T
 
 
 def assert_within_limits(samples: ProfileSamples, limits: ProfileLimits) -> None:

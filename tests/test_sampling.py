@@ -16,34 +16,23 @@ import pinocchio as pin
 import pytest
 
 from jara_arm.robots import RobotModel, robot
-from jara_arm.schema import wire_types as w
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionRequest, MotionSettings
-from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
+from jara_arm.schema.types import CartesianSpeed, LimitValue
 from jara_arm.services.planner import sampling
 from jara_arm.services.planner.kinematics import Kinematics
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.sampling import BatchFk, HermiteSpline, batch_arm_angle, batch_log3
+
+from .support import car, pose
 
 DT = 1e-3
 PLANNED_POS = 1e-6  # [m] every planned sample vs the ideal pose at its path parameter
 PLANNED_ROT = 1e-5  # [rad]
 
 
-def pose(p: Any, R: np.ndarray | None = None) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, 3] = p
-    if R is not None:
-        T[:3, :3] = R
-    return T
-
-
 def rot(axis: Any, angle: float) -> np.ndarray:
     return pin.exp3(np.asarray(axis, dtype=float) / np.linalg.norm(axis) * angle)
-
-
-def car(T: np.ndarray, elbow: float = 0.0) -> dict:
-    return w.CAR_POS_WITH_ELBOW.encode(CarPosWithElbow(T[:3].copy(), elbow, 0))
 
 
 def settings(model: RobotModel, **changes: Any) -> MotionSettings:

@@ -19,7 +19,7 @@ from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import Time, TimedJointPos
-from jara_arm.services.servo.loop import OVERSPEED_MARGIN
+from jara_arm.services.servo.control import OVERSPEED_MARGIN
 
 from .support import Client, Proc, client_session, free_port, service_argv, wait_alive, wait_until
 

@@ -1,0 +1,95 @@
+"""The servo's watch of the alarm monitor: nobody else can watch the watcher.
+
+Without the monitor nothing watches overload, overspeed, the Cartesian box or
+the other services, so the servo stops the arm when the monitor is gone
+(``MONITOR_LOST``, its liveliness token deleted) or hangs (``MONITOR_HUNG``,
+no heartbeat for ``Health.hung_after`` while its token is up). A shorter
+silence is a stall: logged, not an alarm (``docs/timing.md``).
+
+It runs on the servo clock's thread, once per cycle, and only polls Zenoh
+channels; what it finds comes back as a :class:`Finding` for the loop to act on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import zenoh
+
+from jara_arm.schema import codec
+from jara_arm.schema.alarms import HEARTBEAT
+from jara_arm.schema.codes import AlarmCode
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.services.runtime.heartbeat import ServiceWatch
+from jara_arm.services.runtime.timing import Health
+
+
+@dataclasses.dataclass(frozen=True)
+class Finding:
+    """What one look at the monitor found: an alarm to raise (a FAULT), or a line to log."""
+
+    alarm: AlarmCode | None = None
+    description: str = ""
+    warning: str = ""  # a stall that ended, or a malformed heartbeat
+    error: str = ""
+
+
+class MonitorWatch:
+    """The alarm monitor's liveliness token and heartbeat, as seen from one arm's servo loop."""
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys, health: Health) -> None:
+        self.health = health
+        self._token = session.liveliness().declare_subscriber(
+            keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True)
+        self._beats = session.declare_subscriber(keys.heartbeat(Service.ALARM_MONITOR),
+                                                 zenoh.handlers.RingChannel(1))
+        self._watch = ServiceWatch(Service.ALARM_MONITOR, health)
+        self._looked_at = time.monotonic()  # [s] the previous look
+        self._judge_after = 0.0  # [s] monotonic: the monitor's silence counts from then on
+
+    def look(self, hung_latched: bool) -> list[Finding]:
+        """Drain what arrived; ``hung_latched``: MONITOR_HUNG is latched already (not raised again)."""
+        found: list[Finding] = []
+        now = time.monotonic()
+        if now - self._looked_at > self.health.stall_after:
+            # This loop was held up: the beats still in Zenoh's queue come first.
+            self._judge_after = now + self.health.heartbeat_period
+        self._looked_at = now
+        watch = self._watch
+        while (sample := self._token.try_recv()) is not None:
+            if watch.token(sample.kind == zenoh.SampleKind.PUT, now):
+                # Even in order: nothing would watch overload, overspeed or the other services.
+                why = ("it shut down in order" if watch.leaving
+                       else "its liveliness token was deleted (process ended or unreachable)")
+                found.append(Finding(AlarmCode.MONITOR_LOST, f"the alarm monitor is gone: {why}"))
+        if (sample := self._beats.try_recv()) is not None:
+            try:
+                beat = codec.decode_message(HEARTBEAT, sample.payload.to_bytes())
+                gap = watch.heard(now, beat.stuck, beat.leaving)
+            except WireError as exc:
+                found.append(Finding(error=f"ignored a malformed heartbeat of the alarm monitor: {exc}"))
+            else:
+                if gap is not None:
+                    found.append(Finding(warning=watch.stall_line(gap)))
+        if now >= self._judge_after and not hung_latched and watch.hung(now):
+            found.append(Finding(AlarmCode.MONITOR_HUNG,
+                                 f"the alarm monitor hangs while its liveliness token is up: {watch.why_hung(now)}"))
+        return found
+
+    @property
+    def alive(self) -> bool:
+        """Its liveliness token is up."""
+        return self._watch.alive
+
+    def hung(self) -> bool:
+        """Silent past the hung bound while its token is up."""
+        return self._watch.hung(time.monotonic())
+
+    def close(self) -> None:
+        for entity in (self._token, self._beats):
+            try:
+                entity.undeclare()
+            except Exception:  # the session closed first
+                pass
