@@ -222,9 +222,10 @@ class ControlLaw:
         va = np.abs(qd[:n]) + self._reach_at
         reach = va * (va * self._reach_half_inv_a + 2 * BRAKE_JERK_TIME)
         qn = q[:n]
-        if not ((qn + reach > upper) | (qn - reach < lower)).any():
+        close = (qn + reach > upper) | (qn - reach < lower)
+        if not close.any():
             return None
-        near = np.flatnonzero((qn + reach > upper) | (qn - reach < lower))
+        near = np.flatnonzero(close)
         # Unsynchronized: every axis stops on its own, so only the near ones need computing.
         low, high = Braking(q[near], qd[near], qdd[near], self._limit_amax[near], self._limit_jmax[near],
                             self.dt, synchronized=False).extrema()
