@@ -3,16 +3,20 @@
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
+# The install is a strict editable one (a tree of links that editors, mypy and pyright
+# follow): it sees edits to existing files at once, and a new module after a re-install,
+# which the stamp triggers, as it hashes the list of package files with pyproject.toml.
+PACKAGES := schema robots services launcher kinematics
+STAMP  := $(VENV)/.installed-$(shell (cat pyproject.toml; find $(PACKAGES) -type f -not -path '*/__pycache__/*' 2>/dev/null | LC_ALL=C sort) | cksum | cut -d' ' -f1)
 ARGS   ?=
 PYTEST_ARGS ?=
 
-.PHONY: setup up test bench soak schema clean
+.PHONY: setup up test typecheck bench soak schema clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet --config-settings editable_mode=strict -e '.[test]'
 	rm -f $(VENV)/.installed-*
 	touch $@
 
@@ -21,8 +25,12 @@ setup: $(STAMP)
 up: setup
 	$(BIN)/jara-arm up --demo $(ARGS)
 
-test: setup
+test: setup typecheck
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+# Strict on the wire contract and the service framework (pyproject.toml [tool.mypy]).
+typecheck: setup
+	$(BIN)/python -m mypy
 
 bench: setup
 	$(BIN)/python bench/servo_loop.py

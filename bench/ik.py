@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from jara_arm.robots import ROBOTS
-from jara_arm.services.planner.kinematics import Kinematics, pose_error
+from jara_arm.kinematics import Kinematics, pose_error
 
 
 def bench(name: str, n: int, seed: int, repeat: int = 1, tol: float = 1e-5) -> str:

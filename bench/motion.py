@@ -24,11 +24,11 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import ruckig
@@ -50,19 +50,16 @@ from jara_arm.schema.planner import (
     MotionSettings,
 )
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
-from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.kinematics import Kinematics
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.profile import ProfileLimits
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
+sys.path.insert(0, str(Path(__file__).parent))
+from _system import free_port  # noqa: E402
+
 MODEL = robot("iiwa")
 DT = MODEL.cmd_cycle
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def spawn(service: Service, port: int, *extra: str) -> subprocess.Popen:

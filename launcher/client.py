@@ -6,6 +6,7 @@ the encoding (``schema.codec``) and the key expressions (``schema.keys``).
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Mapping
 from typing import Any
@@ -18,6 +19,7 @@ from jara_arm.schema.codes import StateBit
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP, Interface, operation
+from jara_arm.services.runtime.ask import Asker, Silence
 
 
 class ClientError(JaraArmError, RuntimeError):
@@ -31,17 +33,32 @@ class ArmClient:
         self.session = session
         self.keys = ArmKeys(arm)
         self.timeout = timeout  # [s] per query
+        self._askers: dict[tuple[str, float], Asker] = {}
+        self._lock = threading.Lock()
+
+    def _asker(self, key: str) -> Asker:
+        with self._lock:  # one querier per key (and timeout), whichever thread asks first
+            asker = self._askers.get((key, self.timeout))
+            if asker is None:
+                asker = self._askers[(key, self.timeout)] = Asker(self.session, key, self.timeout)
+            return asker
+
+    def close(self) -> None:
+        """Undeclare the queriers (the session's closing does it too)."""
+        with self._lock:
+            for asker in self._askers.values():
+                asker.close()
+            self._askers.clear()
 
     def call(self, interface: Interface, name: str, args: Mapping[str, Any] | None = None,
              *, servo: bool = False) -> Reply:
         """One query; ``servo=True`` asks the low level (``Servo/Common``) instead of the command service."""
         op = operation(interface, name)
         key = self.keys.servo_common(name) if servo else self.keys.interface(interface, name)
-        replies = [r.ok for r in self.session.get(key, payload=codec.encode_request(op, args),
-                                                  timeout=self.timeout) if r.ok is not None]
-        if len(replies) != 1:
-            raise ClientError(f"{key}: expected one reply, got {len(replies)} (is the service running?)")
-        return codec.decode_reply(op, replies[0].payload.to_bytes())
+        got = self._asker(key).ask(codec.encode_request(op, args))
+        if isinstance(got, Silence):
+            raise ClientError(got.why)
+        return codec.decode_reply(op, got.payload, got.encoding)
 
     def common(self, name: str, args: Mapping[str, Any] | None = None) -> Reply:
         return self.call(Interface.COMMON, name, args)

@@ -1,7 +1,8 @@
 """The table of services the launcher runs for every arm, in start order.
 
-A service is a module ``jara_arm.services.<x>`` with a ``main.run(argv) -> int``
-entry (built with ``runtime.service.run_service``) and a ``__main__`` so that
+A service is a module ``jara_arm.services.<x>`` whose ``main`` module names its
+``PROGRAM`` (an ``runtime.service.ArmService``) and its ``run(argv) -> int`` entry,
+with a ``__main__`` so that
 ``python -m jara_arm.services.<x>`` runs it. List a service here only once its
 module exists; ``jara-arm up`` starts them in this order and stops them in the
 reverse order (the command service before the servo it drives).
@@ -12,14 +13,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 from jara_arm.schema.keys import Service
 
-#: Names a service's ``main`` module may give the hook that adds its own options
-#: to the shared parser (``run_service(..., extend=hook)``), public name first.
-_OPTION_HOOKS = ("add_arguments",)
+if TYPE_CHECKING:
+    from jara_arm.services.runtime.service import ArmService
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,16 +46,8 @@ class ServiceSpec:
 
     def parser(self) -> argparse.ArgumentParser:
         """The service's own argument parser: the shared options plus its extra ones."""
-        from jara_arm.services.runtime.service import service_parser
-
-        entry = self.entry()
-        parser = service_parser(self.service, self.description)
-        for hook_name in _OPTION_HOOKS:
-            hook: Callable[[argparse.ArgumentParser], None] | None = getattr(entry, hook_name, None)
-            if callable(hook):
-                hook(parser)
-                break
-        return parser
+        program: type[ArmService] = self.entry().PROGRAM
+        return program.parser()
 
 
 # One line per service, lower layers first.

@@ -16,7 +16,7 @@ import zenoh
 
 from jara_arm.schema import codec, messages
 from jara_arm.schema.alarms import format_code
-from jara_arm.schema.codec import Encoding
+from jara_arm.services.runtime.ask import Asker
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import (ArmKeys, Service, any_arm_alarm, any_arm_log, any_arm_monitor_common,
                                   arm_of, parse_log)
@@ -121,14 +121,17 @@ def print_active_alarms(session: zenoh.Session, arm: str | None, timeout: float 
     op = COMMON[OP.getActiveAlarm]
     key = ArmKeys(arm).monitor_common(op.name) if arm else any_arm_monitor_common(op.name)
     answered = 0
-    for reply in session.get(key, payload=codec.encode_request(op), timeout=timeout):
-        if reply.ok is None:
-            continue
+    asker = Asker(session, key, timeout, target=zenoh.QueryTarget.ALL)
+    try:
+        answers = asker.ask_all(codec.encode_request(op))
+    finally:
+        asker.close()
+    for answer in answers:
         try:
-            who = arm_of(str(reply.ok.key_expr))
-            got = codec.decode_reply(op, reply.ok.payload.to_bytes(), Encoding.of(reply.ok.encoding))
+            who = arm_of(answer.key)
+            got = codec.decode_reply(op, answer.payload, answer.encoding)
         except JaraArmError as exc:
-            say(f"{_stamp(time.time())} ? undecodable answer on {reply.ok.key_expr}: {exc}")
+            say(f"{_stamp(time.time())} ? undecodable answer on {answer.key}: {exc}")
             continue
         answered += 1
         if not got.ok:

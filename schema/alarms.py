@@ -31,12 +31,13 @@ import dataclasses
 import enum
 from collections.abc import Mapping
 from types import MappingProxyType
+from typing import Any
 
 from . import wire_types as w
 from .codes import AlarmCode, AlarmType
 from .operations import COMMON, OP, Operation
 from .types import Alarm, Time
-from .wire_types import Member, StructType
+from .wire_types import StructType, struct, wire
 
 
 class AlarmEventKind(enum.StrEnum):
@@ -104,47 +105,37 @@ def format_code(code: int) -> str:
 class AlarmList:
     """``Monitor/alarms``: every active alarm of the arm, oldest first."""
 
-    tm: Time  # when the monitor made this list; a later tm is a newer list
-    started: Time  # when this monitor process started: a new value means a new monitor
-    alarms: tuple[Alarm, ...]
+    tm: Time = wire(w.TIME)  # when the monitor made this list; a later tm is a newer list
+    started: Time = wire(w.TIME, doc="start of the monitor process")  # a new value means a new monitor
+    alarms: tuple[Alarm, ...] = wire(w.ALARM_SEQ, doc="oldest first")
 
 
 @dataclasses.dataclass(frozen=True)
 class Heartbeat:
     """``heartbeat/<service>``: the service's process runs; which of its working loops are stuck."""
 
-    seq: int  # counts from 0 at the process's start
-    stuck: tuple[str, ...]  # a line per loop that missed its deadline, e.g. "the servo loop: 130 ms"; () if none
-    leaving: bool = False  # the last beat of a service shutting down in order (its token goes next)
+    seq: int = wire(w.ULONG, doc="counts from 0 at the process's start")
+    # e.g. "the servo loop: 130 ms"; () if none
+    stuck: tuple[str, ...] = wire(w.SeqType("StringSeq", w.STRING), doc="a line per loop that missed its deadline")
+    leaving: bool = wire(w.BOOLEAN, doc="the last beat of a service shutting down in order: its token "
+                         "goes next, and that is not a loss", default=False)
 
 
 @dataclasses.dataclass(frozen=True)
 class AlarmReport:
     """``Monitor/report``: what a service detected, and whether its cause is still there."""
 
-    alarm: Alarm
-    present: bool  # the cause is still present (False: clearAlarms may clear it)
-    source: str  # the reporting service (a Service value)
+    alarm: Alarm = wire(w.ALARM)
+    present: bool = wire(w.BOOLEAN, doc="the cause is still present")  # False: clearAlarms may clear it
+    source: str = wire(w.STRING, doc="the reporting service")  # a Service value
 
 
-ALARM_LIST = StructType(AlarmList, (
-    Member("tm", w.TIME), Member("started", w.TIME, doc="start of the monitor process"),
-    Member("alarms", w.ALARM_SEQ, doc="oldest first"),
-), strict=False, doc="Internal: the alarm monitor's list of active alarms, Monitor/alarms.")
-ALARM_REPORT = StructType(AlarmReport, (
-    Member("alarm", w.ALARM), Member("present", w.BOOLEAN, doc="the cause is still present"),
-    Member("source", w.STRING, doc="the reporting service"),
-), strict=False, doc="Internal: a service -> the alarm monitor, Monitor/report.")
-
-HEARTBEAT = StructType(Heartbeat, (
-    Member("seq", w.ULONG, doc="counts from 0 at the process's start"),
-    Member("stuck", w.SeqType("StringSeq", w.STRING), doc="a line per loop that missed its deadline"),
-    Member("leaving", w.BOOLEAN, doc="the last beat of a service shutting down in order: its token "
-           "goes next, and that is not a loss"),
-), strict=False, doc="Internal: every service -> the alarm monitor, heartbeat/<service>.")
+ALARM_LIST = struct(AlarmList, strict=False, doc="Internal: the alarm monitor's list of active alarms, Monitor/alarms.")
+ALARM_REPORT = struct(AlarmReport, strict=False, doc="Internal: a service -> the alarm monitor, Monitor/report.")
+HEARTBEAT = struct(Heartbeat, strict=False, doc="Internal: every service -> the alarm monitor, heartbeat/<service>.")
 
 #: The Common operations the alarm monitor serves at ``Monitor/Common/<op>``.
 MONITOR_OPERATIONS: Mapping[str, Operation] = MappingProxyType(
     {name: COMMON[name] for name in (OP.clearAlarms, OP.getActiveAlarm)})
 
-MESSAGES: tuple[StructType, ...] = (ALARM_LIST, ALARM_REPORT, HEARTBEAT)
+MESSAGES: tuple[StructType[Any], ...] = (ALARM_LIST, ALARM_REPORT, HEARTBEAT)

@@ -56,7 +56,8 @@ def loads(payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
 def dumps(value: Any, encoding: Encoding = Encoding.MSGPACK) -> bytes:
     if encoding is Encoding.JSON:
         return json.dumps(value, separators=(",", ":"), allow_nan=False).encode()
-    return msgpack.packb(value, use_bin_type=True)
+    payload: bytes = msgpack.packb(value, use_bin_type=True)
+    return payload
 
 
 def decode_request(op: Operation, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> dict[str, Any]:
@@ -136,11 +137,11 @@ def decode_reply(op: Operation, payload: bytes, encoding: Encoding = Encoding.MS
     return Reply(code, comment, outs)
 
 
-def encode_message(kind: StructType, value: Any, encoding: Encoding = Encoding.MSGPACK) -> bytes:
+def encode_message(kind: StructType[Any], value: Any, encoding: Encoding = Encoding.MSGPACK) -> bytes:
     return dumps(kind.encode(value), encoding)
 
 
-def decode_message(kind: StructType, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
+def decode_message(kind: StructType[Any], payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
     return kind.decode(loads(payload, encoding), "")
 
 
@@ -153,7 +154,8 @@ def deadline_attachment(timeout: float) -> bytes:
     speak of attachments: this one is ours, used between our services; a
     query without it is always answered.
     """
-    return msgpack.packb({"deadline": time.time() + timeout}, use_bin_type=True)
+    payload: bytes = msgpack.packb({"deadline": time.time() + timeout}, use_bin_type=True)
+    return payload
 
 
 def attachment_deadline(attachment: bytes | None) -> float | None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from types import MappingProxyType
 from typing import Final
 
@@ -43,7 +43,8 @@ class Operation:
     motion: bool = False
 
 
-def _op(interface: Interface, name: str, doc: str, inputs=(), outputs=(), motion=False) -> Operation:
+def _op(interface: Interface, name: str, doc: str, inputs: Iterable[Member] = (),
+        outputs: Iterable[Member] = (), motion: bool = False) -> Operation:
     return Operation(name, interface, tuple(inputs), tuple(outputs), doc, motion)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import time as _time
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -92,7 +93,8 @@ class CartesianSpeed:
     rotation: float  # [rad/s]
 
 
-def hg_matrix(rotation: np.ndarray | None = None, translation=(0.0, 0.0, 0.0)) -> HgMatrix:
+def hg_matrix(rotation: np.ndarray | None = None,
+              translation: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0)) -> HgMatrix:
     """A read-only ``HgMatrix`` from a 3x3 rotation [-] and a translation [m]."""
     m = np.zeros((3, 4))
     m[:, :3] = np.eye(3) if rotation is None else rotation

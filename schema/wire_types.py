@@ -137,18 +137,18 @@ class AlarmTypeType(WireType[AlarmType]):
         return {"enum": [m.value for m in AlarmType]}
 
 
-class SeqType(WireType[tuple]):
+class SeqType(WireType[tuple[Any, ...]]):
     """``sequence<item>``; a list on the wire, a tuple in Python."""
 
-    def __init__(self, name: str, item: WireType) -> None:
+    def __init__(self, name: str, item: WireType[Any]) -> None:
         self.name, self.item = name, item
 
-    def decode(self, value: Any, path: str) -> tuple:
+    def decode(self, value: Any, path: str) -> tuple[Any, ...]:
         if not isinstance(value, (list, tuple)):
             raise WireError(path, f"expected a list ({self.name}), got {_kind(value)}")
         return tuple(self.item.decode(v, f"{path}[{i}]") for i, v in enumerate(value))
 
-    def encode(self, value: Any) -> list:
+    def encode(self, value: Any) -> list[Any]:
         return [self.item.encode(v) for v in value]
 
     def json_schema(self) -> dict[str, Any]:
@@ -183,7 +183,7 @@ class HgMatrixType(WireType[np.ndarray]):
         m.flags.writeable = False
         return m
 
-    def encode(self, value: np.ndarray) -> list:
+    def encode(self, value: np.ndarray) -> list[Any]:
         return np.asarray(value, dtype=float).reshape(3, 4).tolist()
 
     def json_schema(self) -> dict[str, Any]:
@@ -200,9 +200,19 @@ class Member:
     """A struct member or operation parameter: name, wire type, unit, meaning."""
 
     name: str
-    type: WireType
+    type: WireType[Any]
     unit: str = ""
     doc: str = ""
+
+
+_WIRE = "jara_arm.wire"  # the dataclass field metadata key of wire()
+
+
+def wire(type_: WireType[Any], unit: str = "", doc: str = "", **field: Any) -> Any:
+    """A dataclass field declared with its wire type, unit and meaning, e.g.
+    ``vel: tuple[float, ...] = wire(DOUBLE_SEQ, "rad/s or m/s")``: :func:`struct` reads it, so a
+    message is declared once (``field`` passes on, e.g. ``default=False``)."""
+    return dataclasses.field(metadata={_WIRE: (type_, unit, doc)}, **field)
 
 
 class StructType(WireType[T]):
@@ -267,6 +277,18 @@ DOUBLE_SEQ = SeqType("DoubleSeq", DOUBLE)
 JOINT_POS = SeqType("JointPos", DOUBLE)
 HG_MATRIX = HgMatrixType()
 
+def struct(cls: type[T], *, strict: bool = True, doc: str = "") -> StructType[T]:
+    """The :class:`StructType` of a dataclass whose every field is declared with :func:`wire`,
+    members in field order."""
+    members = []
+    for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        if _WIRE not in f.metadata:
+            raise TypeError(f"{cls.__name__}.{f.name}: declare its wire type with wire(...)")
+        type_, unit, meaning = f.metadata[_WIRE]
+        members.append(Member(f.name, type_, unit, meaning))
+    return StructType(cls, tuple(members), strict=strict, doc=doc)
+
+
 TIME = StructType(t.Time, (
     Member("sec", IntegerType("ULONG", 0, ULONG_MAX), "s"),
     Member("nsec", IntegerType("ULONG", 0, 999_999_999), "ns"),
@@ -300,6 +322,6 @@ CARTESIAN_SPEED = StructType(t.CartesianSpeed, (
 ))
 
 #: Every named type, for the generated JSON Schema ``$defs``.
-NAMED_TYPES: tuple[WireType, ...] = (
+NAMED_TYPES: tuple[WireType[Any], ...] = (
     TIME, LIMIT_VALUE, TIMED_JOINT_POS, ALARM, MANIP_INFO, CAR_POS_WITH_ELBOW, CARTESIAN_SPEED,
 )

@@ -48,7 +48,10 @@ with zenoh.open(conf) as session:
         pub.put(msgpack.packb({"tm": {"sec": int(now), "nsec": int(now % 1 * 1e9)}, "pos": q}))
         if k > 100:  # keep 100 commands ahead of the servo, then one per cycle
             time.sleep(max(0.0, t0 + (k - 100) * 1e-3 - time.monotonic()))
-    time.sleep(0.5)
+    deadline = time.monotonic() + 10.0
+    while call(session, "getState")["state"] & 0x02:  # moving: commands left, or the arm not yet at rest
+        assert time.monotonic() < deadline, "the arm did not come to rest"
+        time.sleep(0.01)
     last = msgpack.unpackb(feedback.recv().payload.to_bytes())
     assert abs(last["pos"][0] - (q0[0] + 0.3)) < 1e-3, last
     assert call(session, "getState")["state"] & 0x01

@@ -1,4 +1,4 @@
-"""Test helpers: free loopback ports, service processes, a typed client over Zenoh.
+"""Test helpers: free loopback ports, service processes, a typed client over Zenoh, waits on events.
 
 Every test talks to real processes over real Zenoh sessions on 127.0.0.1 with
 multicast scouting off, on ports of its own, so that tests can run side by side.
@@ -169,6 +169,56 @@ def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: s
             extra = f"\n{explain()}" if explain is not None else ""
             raise AssertionError(f"timed out after {timeout} s waiting for {what}{extra}")
         time.sleep(interval)
+
+
+class ServoTime:
+    """The servo's own clock and joints, read from its newest ``Servo/posFeedback`` sample.
+
+    A sample's ``tm`` is the time its cycle stands for (at rest the cycle's wall-clock
+    deadline; a cycle never runs before its deadline), so a sample stamped ``t`` or
+    later proves that the servo ran a cycle at ``t`` or later. Observation windows
+    ("nothing moves for 0.3 s") are measured on it: a window of the servo's time has
+    really been run through by the servo, however slowly the machine went, which a
+    wall-clock sleep does not prove.
+    """
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
+        self._sub = session.declare_subscriber(keys.pos_feedback, zenoh.handlers.RingChannel(1))
+
+    def sample(self, timeout: float = 5.0) -> tuple[float, np.ndarray]:
+        """``(tm [s], joints)`` of a sample newer than the one read last, waiting for it."""
+        def newer():
+            got = self._sub.try_recv()
+            return None if got is None else [got]
+
+        sample = wait_until(newer, timeout, 0.002, "a servo feedback sample")[0]
+        msg = codec.decode_message(w.TIMED_JOINT_POS, sample.payload.to_bytes())
+        return msg.tm.to_seconds(), np.array(msg.pos)
+
+    def passes(self, seconds: float, timeout: float = 10.0) -> None:
+        """Until the servo has stamped a sample ``seconds`` [s] after now: an observation window
+        of ``seconds`` of the servo's own cycles."""
+        end = time.time() + seconds
+        wait_until(lambda: self.sample(timeout)[0] >= end, seconds + timeout, 0.002,
+                   f"the servo's clock {seconds:g} s on")
+
+    def settled(self, apart: float = 0.02, tol: float = 1e-9, timeout: float = 10.0) -> np.ndarray:
+        """Until two samples ``apart`` [s] of the servo's time show the same joints (within
+        ``tol``): the arm at rest and settled (the servo then holds it exactly where it is);
+        those joints."""
+        first = [self.sample(timeout)]
+
+        def still():
+            tm, q = self.sample(timeout)
+            t0, q0 = first[0]
+            if tm - t0 < apart:
+                return None
+            if np.abs(q - q0).max() <= tol:
+                return (q,)
+            first[0] = (tm, q)
+            return None
+
+        return wait_until(still, timeout, 0.002, "the arm at rest and settled")[0]
 
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]

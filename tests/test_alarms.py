@@ -19,6 +19,7 @@ of the first status sample whose effort is above the rating.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import re
 import signal
@@ -38,9 +39,10 @@ from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP
+from jara_arm.schema.planner import MOTION_SETTINGS
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
 from jara_arm.services.runtime.timing import SAME_HOST
-from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.kinematics import Kinematics
 from jara_arm.services.servo.control import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
 from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
@@ -69,6 +71,12 @@ def _obstacle() -> str:
 OBSTACLE = _obstacle()
 #: Feedback acceleration allowed while stopping, per axis: the limit x 1.5 (simulation noise) [rad/s^2].
 ACC_ALLOWED = AMAX * 1.5
+#: [s] of feedback, stamped by the servo, recorded after the arm was seen at rest: what "at rest
+#: at the end of the recording" is judged on.
+REST_TAIL = 0.05
+#: [s] of the servo's own time in which an arm held against an obstacle lets its push fade
+#: (README, "Reactions": 0.2 s).
+PUSH_FADE = 0.2
 ALL_SERVICES = [Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR]
 _STARTED = re.compile(r"started (\S+) \((\S+)\): pid (\d+)")
 LATENCIES: dict[str, list[float]] = {}  # [ms] per scenario
@@ -92,6 +100,9 @@ class System:
         # Every command counts (SyncFIFO): block rather than drop one (a gap is a jump).
         self.pub = session.declare_publisher(self.keys.pos_cmd, express=True,
                                              congestion_control=zenoh.CongestionControl.BLOCK)
+        # The command's settings (on every change and at 4 Hz): what the alarm monitor judges
+        # the control point by.
+        self._settings = session.declare_subscriber(self.keys.command_settings, zenoh.handlers.RingChannel(1))
         self.cart_limits = self.middle(OP.getSoftLimitCartesian)
 
     # -- calls ------------------------------------------------------------------
@@ -142,6 +153,49 @@ class System:
         while (s := self._status.try_recv()) is not None:
             out.append(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
         return out
+
+    def statuses_until(self, predicate, what: str, timeout: float = 5.0) -> list[messages.ServoStatus]:
+        """The statuses since the last drain, up to (at least) one for which ``predicate`` holds, waiting for it."""
+        got: list[messages.ServoStatus] = []
+        wait_until(lambda: got.extend(self.statuses()) or any(predicate(s) for s in got), timeout, 0.005,
+                   what, explain=self.log_tail)
+        return got
+
+    def feedback_through(self, t: float, timeout: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+        """(tm [s], joints) of the feedback since ``mark``, up to (at least) a sample the servo
+        stamped ``t`` [s] or later (a cycle never runs before its deadline, its stamp at rest)."""
+        tms: list[np.ndarray] = []
+        qs: list[np.ndarray] = []
+
+        def through() -> bool:
+            tm, q = self.feedback()
+            if len(tm):
+                tms.append(tm)
+                qs.append(q)
+            return bool(tms) and tms[-1][-1] >= t
+
+        wait_until(through, timeout, 0.005, f"a feedback sample stamped {t:.3f} or later", explain=self.log_tail)
+        return np.concatenate(tms), np.concatenate(qs)
+
+    def under_way(self, base: int, cycles: int, timeout: float = 10.0) -> None:
+        """Until the servo has taken ``cycles`` commands since it had taken ``base`` (``consumed``):
+        the arm that far into its motion."""
+        self.statuses_until(lambda s: s.consumed >= base + cycles,
+                            f"the servo to take {cycles} commands since {base}", timeout)
+
+    def wait_cartesian_box(self, box: dict, timeout: float = 5.0) -> None:
+        """Until the command publishes its settings with the Cartesian soft limits ``box``
+        (``xLimit``, ``yLimit``, ``zLimit``): the alarm monitor, subscribed to the same, has them."""
+        want = tuple((box[k].upper, box[k].lower) for k in ("xLimit", "yLimit", "zLimit"))
+
+        def published() -> bool:
+            s = self._settings.try_recv()
+            if s is None:
+                return False
+            got = codec.decode_message(MOTION_SETTINGS, s.payload.to_bytes()).softLimitCartesian
+            return tuple((lim.upper, lim.lower) for lim in got) == want
+
+        wait_until(published, timeout, 0.01, f"the command's settings with the Cartesian box {want}")
 
     def event(self, code: AlarmCode, since: int, kind: AlarmEventKind = AlarmEventKind.RAISED,
               timeout: float = 5.0) -> tuple[float, messages.AlarmEvent]:
@@ -294,8 +348,7 @@ def check_alarm(arm: System, code: AlarmCode, kind: AlarmType, servo_on: bool) -
 def check_no_jump(arm: System, since: float = 0.0, allowed: np.ndarray = ACC_ALLOWED) -> np.ndarray:
     """At rest, and the feedback (from ``since`` [s] on) never accelerated beyond ``allowed``; the last joints."""
     arm.wait_rest()
-    time.sleep(0.05)
-    tm, q = arm.feedback()
+    tm, q = arm.feedback_through(time.time() + REST_TAIL)
     keep = tm >= since
     tm, q = tm[keep], q[keep]
     assert len(tm) > 50, "no feedback recorded"
@@ -334,6 +387,28 @@ def min_jerk(q0: np.ndarray, q1: np.ndarray, duration: float) -> np.ndarray:
     return q0 + (10 * u**3 - 15 * u**4 + 6 * u**5) * (q1 - q0)
 
 
+def wait_listening(arm: System, cli: Proc, service: Service, timeout: float = 30.0) -> None:
+    """Until ``jara-arm logs`` (``cli``, showing ``service`` at ERROR) prints a record published
+    now: its subscriber is up and the router routes ``service``'s records to it.
+
+    The probe is an ERROR record on ``service``'s log key that says it is the test's own;
+    it is published again at each poll, the first ones may come before the subscriber.
+    """
+    probe = f"test probe from tests/test_alarms.py (pid {os.getpid()}): is `jara-arm logs` listening?"
+    pub = arm.session.declare_publisher(arm.keys.log(service))
+    record = messages.LogRecord(0.0, "ERROR", service.value, probe, "tests")
+    try:
+        def printed() -> bool:
+            payload = codec.encode_message(messages.LOG_RECORD, dataclasses.replace(record, t=time.time()))
+            pub.put(payload)
+            return any(probe in line for line in list(cli.lines))
+
+        wait_until(printed, timeout, 0.2, "`jara-arm logs` to print a probe record",
+                   explain=lambda: cli.output[-2000:])
+    finally:
+        pub.undeclare()
+
+
 @contextlib.contextmanager
 def stopped(pid: int) -> Iterator[None]:
     """SIGSTOP ``pid``; SIGCONT when the block ends, whatever happens."""
@@ -354,13 +429,14 @@ def test_estop_during_a_lin(arm: System):
                      "--service", "alarm-monitor", "--level", "ERROR"])
     try:
         alarms_cli.wait_for_line("arm0 ACTIVE  none", timeout=20)
-        time.sleep(1.0)  # the logs subscriber is declared by then
+        wait_listening(arm, logs_cli, Service.ALARM_MONITOR)
         arm.ok(arm.middle(OP.setSpeedCartesian, {"spdRatio": 60}))
         down = CarPosWithElbow(hg_matrix(translation=(0.0, -0.2, -0.1)), 0.0, 0)
+        base = arm.consumed()
         arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": down}))
         arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": down}))
         since = arm.mark()
-        time.sleep(0.6)  # in the middle of the first LIN
+        arm.under_way(base, 600)  # in the middle of the first LIN
         assert arm.state() & StateBit.MOVING, arm.log_tail()
         cause = time.time()
         arm.session.put(arm.keys.estop, b"")
@@ -413,8 +489,8 @@ def test_driven_into_an_obstacle(arm: System):
     assert 0.15 < q[0] < 0.6, q  # stopped by the box, long before the target (0.8)
     # Held where it stopped, not pushing: the effort falls back below the rating.
     arm.mark()
-    time.sleep(0.2)
-    newest = wait_until(lambda: arm.statuses()[-1:], 1.0, 0.005, "a servo status")[-1]
+    faded = time.time() + PUSH_FADE
+    newest = arm.statuses_until(lambda s: s.tm.to_seconds() >= faded, f"a servo status {PUSH_FADE} s on")[-1]
     assert np.all(np.abs(np.array(newest.effort[:N])) < rating)
     refused = arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.1,) + (0.0,) * (N - 1)})
     assert refused.id == ReturnCode.STATUS_ERR and "alarm" in refused.comment, refused
@@ -431,8 +507,8 @@ def test_position_stream_that_jumps(arm: System):
     base = arm.consumed()
     sent = arm.stream(path[: jump + 50])
     t, event = arm.event(AlarmCode.OVERSPEED, since)
-    time.sleep(0.05)
-    latency("jump in the stream (servo takes it)", arm.consumed_at(arm.statuses(), base + jump + 1), t)
+    taken = arm.statuses_until(lambda s: s.consumed >= base + jump + 1, "a status with the jump taken")
+    latency("jump in the stream (servo takes it)", arm.consumed_at(taken, base + jump + 1), t)
     assert event.alarm.type is AlarmType.FAULT and "J3" in event.alarm.description
     check_alarm(arm, AlarmCode.OVERSPEED, AlarmType.FAULT, servo_on=False)
     q = check_no_jump(arm, since=sent[0])
@@ -456,8 +532,8 @@ def test_position_stream_that_leaves_the_joint_soft_limits(arm: System):
     refused = float(re.search(r"J1=(\S+) ", event.alarm.description)[1])
     first = int(np.argmin(np.abs(path[:, 0] - refused)))
     assert abs(path[first, 0] - refused) < 1e-5 and path[first, 0] > limits[0].lower
-    time.sleep(0.05)
-    latency("joint soft limit (servo takes it)", arm.consumed_at(arm.statuses(), base + first + 1), t)
+    taken = arm.statuses_until(lambda s: s.consumed >= base + first + 1, "a status with the refused command taken")
+    latency("joint soft limit (servo takes it)", arm.consumed_at(taken, base + first + 1), t)
     assert event.alarm.type is AlarmType.WARNING
     check_alarm(arm, AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING, servo_on=True)
     # A stop in front of a limit may use the planner's peak deceleration (servo LIMIT_STOP_ACCEL).
@@ -473,7 +549,7 @@ def test_control_point_crosses_the_cartesian_soft_limits(arm: System):
     c = arm.cart_limits
     box = {"xLimit": c["xLimit"], "yLimit": c["yLimit"], "zLimit": LimitValue(upper=z0 + 0.03, lower=c["zLimit"].lower)}
     arm.ok(arm.middle(OP.setSoftLimitCartesian, box))
-    time.sleep(0.1)  # the monitor has the new settings
+    arm.wait_cartesian_box(box)  # the monitor has the new settings
     q1 = q0 + np.array([0.0, -0.4, 0.0, 0.3, 0.0, 0.0, 0.0])
     assert arm.kin.fk(q1)[2, 3] > z0 + 0.06, "the test motion must lift the flange"
     since = arm.mark()
@@ -489,17 +565,18 @@ def test_control_point_crosses_the_cartesian_soft_limits(arm: System):
     kept = arm.common(OP.clearAlarms)  # the tool is still above the box: the cause is present
     assert kept.id == ReturnCode.STATUS_ERR and "0x05" in kept.comment and "still present" in kept.comment, kept
     arm.ok(arm.middle(OP.setSoftLimitCartesian, {k: c[k] for k in ("xLimit", "yLimit", "zLimit")}))
-    time.sleep(0.1)
+    arm.wait_cartesian_box(c)  # the monitor has the box back: the cause has gone
     check_back_to_work(arm, servo_on_needed=False)
 
 
 def start_long_motion(arm: System) -> int:
     """Two queued PTPs, the arm under way in the first; the index of the next alarm event."""
     arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 20}))
+    base = arm.consumed()
     arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (-0.6,) + (0.0,) * (N - 1)}))
     arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": (0.3,) + (0.0,) * (N - 1)}))
     since = arm.mark()
-    time.sleep(0.5)
+    arm.under_way(base, 500)
     assert arm.state() & StateBit.MOVING, f"{arm.common(OP.getActiveAlarm)}\n{arm.log_tail()}"
     return since
 

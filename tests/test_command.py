@@ -46,6 +46,10 @@ N = IIWA.axis_num
 OK, NG = ReturnCode.OK, ReturnCode.NG
 VALUE_ERR, STATUS_ERR = ReturnCode.VALUE_ERR, ReturnCode.STATUS_ERR
 FAKE_PLAN_TIMEOUT = 0.5  # [s] --plan-timeout of the fake rig's command
+#: Turns of the command's state watcher (``Rig.watcher_turns``) in which nothing may be
+#: published when nothing changed: an observation window counted in the turns of the thread
+#: that would publish (it turns every 10 ms), not in wall-clock time.
+QUIET_TURNS = 20
 
 
 def service_argv(service: Service, port: int, arm: str, *extra: str) -> list[str]:
@@ -152,6 +156,25 @@ class Rig:
         reply = self.client.call(interface, name, args)
         assert reply.id == OK, (name, reply)
         return reply
+
+    def watcher_turns(self, turns: int = 2, timeout: float = 5.0) -> None:
+        """Until the command's state watcher has taken up what this session published so far.
+
+        The watcher answers ``Monitor/copy/command`` queries itself, in each of its turns
+        before it takes up the Planner/progress and Servo/status that arrived
+        (``services/command/watch.py``, ``Watcher.drain``), and a query travels on the same
+        link as, and behind, whatever this session published before it. The first answer
+        comes from a turn that takes up all of that right after answering; the next one
+        from a later turn (unless the watcher stalled for a whole round trip between two
+        queries of one turn). Without an adopted alarm list (no alarm monitor here) the
+        watcher drops the query unanswered, which ends it all the same.
+        """
+        key = self.keys.alarm_copy(Service.COMMAND)
+        for _ in range(turns):
+            start = time.monotonic()
+            list(self.session.get(key, timeout=timeout))
+            if time.monotonic() - start >= timeout:
+                raise AssertionError(f"the command's state watcher did not take up {key} within {timeout} s")
 
 
 class Rigs:
@@ -479,8 +502,11 @@ def test_pause_resume_stop_ignored_when_the_spec_says_so(real: Rig):
 
 def test_state_is_published_on_every_change(real: Rig):
     sub = real.session.declare_subscriber(real.keys.state, zenoh.handlers.FifoChannel(256))
+    # Declared after ``sub``, on a key nobody else subscribes to here: once a heartbeat of the
+    # command arrives, the command routes its publications to both subscribers.
+    beats = real.session.declare_subscriber(real.keys.heartbeat(Service.COMMAND), zenoh.handlers.RingChannel(1))
     try:
-        time.sleep(0.1)
+        wait_until(lambda: beats.try_recv() is not None, 5, 0.01, "a heartbeat of the command")
         real.ok(Interface.COMMON, OP.servoOFF)
         real.ok(Interface.COMMON, OP.servoON)
 
@@ -496,10 +522,11 @@ def test_state_is_published_on_every_change(real: Rig):
         decoded = codec.decode_message(messages.STATE_MESSAGE, codec.dumps(seen[-1]))
         assert decoded.state == StateBit.SERVO_ON
         assert seen[-1]["queueLength"] == 0 and seen[-1]["queueCapacity"] == 32
-        time.sleep(0.2)
+        real.watcher_turns(QUIET_TURNS)  # what it published in them has arrived by the last answer
         assert states() == []  # nothing changed: nothing published
     finally:
         sub.undeclare()
+        beats.undeclare()
 
 
 # ---------------------------------------------------------------------------- Cartesian feedback
@@ -629,7 +656,7 @@ def test_queue_full_bookkeeping_from_progress(fake):
     ids = [p.motion for p in peers.plans]
     # A progress message older than the last acceptance drops nothing it does not prove finished.
     peers.progress(running=ids[0], queued=tuple(ids[:10]))
-    time.sleep(0.1)
+    rig.watcher_turns()  # the command has taken it up
     assert c.middle(OP.movePTPJointRel, move).id == ReturnCode.FULL_MOTION_QUEUE_ERR
     peers.progress(running=ids[3], queued=tuple(ids[3:]), last_done=ids[2])  # three motions done
     wait_until(lambda: not rig.state() & StateBit.BUFFER_FULL, 2, what="queue no longer full")
@@ -644,7 +671,7 @@ def test_queue_full_bookkeeping_from_progress(fake):
     assert peers.controls[-1] == "stop"
     assert rig.state() == StateBit.SERVO_ON
     peers.progress(running=ids[3], queued=tuple(ids[3:]), last_done=ids[2])
-    time.sleep(0.1)
+    rig.watcher_turns()  # the command has taken it up
     assert rig.state() == StateBit.SERVO_ON
 
 
@@ -661,13 +688,13 @@ def test_pause_resume_and_planner_edges(fake):
     r = c.middle(OP.pause)
     assert r.id == OK and "already paused" in r.comment and peers.controls == ["pause"]
     peers.progress(running=motion, queued=(motion,), paused=False)  # published before the pause
-    time.sleep(0.1)
+    rig.watcher_turns()  # the command has taken it up
     assert rig.state() & StateBit.PAUSED
     peers.progress(running=motion, queued=(motion,), paused=True)  # the planner agrees
     rig.ok(Interface.MIDDLE, OP.resume)
     assert peers.controls == ["pause", "resume"] and not rig.state() & StateBit.PAUSED
     peers.progress(running=motion, queued=(motion,), paused=True)  # published before the resume
-    time.sleep(0.1)
+    rig.watcher_turns()  # the command has taken it up
     assert not rig.state() & StateBit.PAUSED
     peers.progress(running=motion, queued=(motion,), paused=False)
     peers.progress(running=motion, queued=(motion,), paused=True)  # a change of its own: an edge

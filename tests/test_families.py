@@ -24,12 +24,11 @@ from jara_arm.robots import robot
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit
-from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, hg_matrix
-from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.kinematics import Kinematics
 
-from .support import client_session, launched
+from .support import ServoTime
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -43,6 +42,9 @@ TOL_POS = 1e-4  # [m] reached position (feedback, settled), 1-6 axes
 TOL_ROT = 1e-3  # [rad]
 TOL_POSE_7 = 1e-5  # [m, rad] 7-axis pose (issue 5)
 TOL_ELBOW = 1e-3  # [rad]
+#: [s] observation window, of the servo's own time (support.ServoTime): after a refusal was
+#: answered, nothing may move in it.
+QUIET_WINDOW = 0.1
 
 
 def rot(axis, angle: float) -> np.ndarray:
@@ -80,6 +82,7 @@ class Arm:
         self.n = self.model.axis_num
         self.kin = Kinematics(self.model, seed_table=0)
         self.fb = session.declare_subscriber(self.client.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
+        self.servo_time = ServoTime(session, self.client.keys)
 
     def ok(self, reply) -> None:
         assert reply.id == ReturnCode.OK, reply
@@ -165,19 +168,9 @@ class Arm:
 
 
 @pytest.fixture(scope="module", params=NAMES)
-def live(request):
-    with launched("--robot", request.param) as (proc, port), client_session(port) as session:
-        arm = Arm(session, request.param)
-        arm.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
-        arm.proc = proc
-        yield arm
-
-
-@pytest.fixture
-def arm(live: Arm) -> Arm:
-    live.reset()
-    live.record()
-    return live
+def robot_name(request) -> str:
+    """The robots of ``live`` and ``arm`` (conftest.py): one system each, with this module's ``Arm``."""
+    return request.param
 
 
 def only(*names: str):
@@ -262,7 +255,7 @@ def test_cartesian_command_accepted_or_refused_per_table(arm: Arm, op: str):
     reply = arm.middle(op, args)
     if not accepted:
         assert reply.id == ReturnCode.NG, reply
-        time.sleep(0.1)
+        arm.servo_time.passes(QUIET_WINDOW)  # a motion queued all the same would move the arm in it
         assert np.abs(arm.joints() - q0).max() < 1e-6  # nothing moved
         return
     assert reply.id == ReturnCode.OK, reply
@@ -488,7 +481,7 @@ def test_cartesian_soft_limits_refuse_a_path_that_leaves_the_box(arm: Arm):
             reply = arm.middle(OP.moveCircularCartesianRel,
                                {"carPointR": rel(via[:3, 3] - p), "carPointT": rel(tgt[:3, 3] - p)})
         assert reply.id == ReturnCode.VALUE_ERR, reply
-        time.sleep(0.1)
+        arm.servo_time.passes(QUIET_WINDOW)  # a motion queued all the same would move the arm in it
         assert np.abs(arm.joints() - q0).max() < 1e-6  # nothing moved
     finally:
         wide = {n: LimitValue(10.0, -10.0) for n in names}

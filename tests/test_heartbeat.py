@@ -23,6 +23,10 @@ from .support import endpoint, free_port, wait_until
 
 #: Beats every 5 ms, so that these tests see many in little time.
 FAST = Health("test", heartbeat_period=0.005, stall_after=0.05, hung_after=1.0, first_beat_grace=1.0)
+#: [s] after close(): an observation window of ten heartbeat periods in which no beat may come.
+#: (close() joins the heartbeat thread, and a subscriber of the publishing session gets each
+#: beat within the put: nothing is on its way when the window starts.)
+SILENT_WINDOW = 10 * FAST.heartbeat_period
 
 
 @pytest.fixture
@@ -61,17 +65,24 @@ def test_beats_name_the_service_count_up_and_report_a_stuck_loop(session: zenoh.
                            what="a heartbeat naming the stuck loop")
         assert len(stuck) == 1 and stuck[0].startswith("the test loop has not turned for ")
         assert "(deadline 200 ms)" in stuck[0]
+        beats.clear()
         pulse.beat()
-        time.sleep(0.02)
+        # Beats come in order: once one names no stuck loop (judged after the beat above, the
+        # loop being stuck until then, or after a stall of the heartbeat thread, which restarts
+        # the judgement), none after it does.
+        wait_until(lambda: any(b.stuck == () for _, b in list(beats)), 2.0,
+                   what="a heartbeat judged after the loop turned")
         beats.clear()
         wait_until(lambda: len(beats) >= 3, 2.0, what="more heartbeats")
         assert all(b.stuck == () for _, b in list(beats))
     finally:
         heartbeat.close()
+    try:
+        n = len(beats)
+        time.sleep(SILENT_WINDOW)  # the subscriber still listens: a beat after close() would show
+        assert len(beats) == n  # closed: silent
+    finally:
         sub.undeclare()
-    n = len(beats)
-    time.sleep(0.05)
-    assert len(beats) == n  # closed: silent
 
 
 def test_pulse_deadline_must_be_positive():
@@ -95,7 +106,7 @@ def test_leave_sends_one_last_beat_that_says_so_then_nothing(session: zenoh.Sess
         assert [b.leaving for b in last].count(True) == 1 and last[-1].seq >= last[-2].seq
         heartbeat.leave()  # once only
         heartbeat.close()
-        time.sleep(0.05)
+        time.sleep(SILENT_WINDOW)  # observation window: a beat after leave() and close() would show
         assert len(beats) == len(last)
     finally:
         heartbeat.close()

@@ -11,7 +11,7 @@ import pytest
 
 from jara_arm.robots import ROBOTS, Family
 from jara_arm.schema.errors import JaraArmError
-from jara_arm.services.planner.kinematics import (
+from jara_arm.kinematics import (
     FULL_MASK,
     POSITION_MASK,
     IkResult,

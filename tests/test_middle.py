@@ -7,8 +7,6 @@ check: where the arm went (joint feedback, FK of it), how it got there
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 import zenoh
@@ -18,15 +16,18 @@ from jara_arm.robots import robot
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit
-from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, hg_matrix
-from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.kinematics import Kinematics
 
-from .support import client_session, launched, wait_until
+from .support import ServoTime, wait_until
 
 pytestmark = pytest.mark.timeout(180)
 TOL_PATH = 0.5e-3  # [m] executed deviation allowed (issue 3)
+#: [s] observation windows, of the servo's own time (support.ServoTime): after the request was
+#: answered (and the arm settled), nothing may move in them.
+HOLD_WINDOW = 0.3
+QUIET_WINDOW = 0.2
 
 
 class Arm:
@@ -37,6 +38,7 @@ class Arm:
         self.model = robot(robot_name)
         self.kin = Kinematics(self.model)
         self.fb = session.declare_subscriber(self.client.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
+        self.servo_time = ServoTime(session, self.client.keys)
 
     def ok(self, reply) -> None:
         assert reply.id == ReturnCode.OK, reply
@@ -52,6 +54,10 @@ class Arm:
 
     def pose(self) -> np.ndarray:
         return np.asarray(self.middle(OP.getFeedbackPosCartesian)["pos"].carPos)
+
+    def servo_moving(self) -> bool:
+        """The servo's own bit 0x02: the arm really moves (the command's also counts queued motions)."""
+        return bool(self.client.servo(OP.getState)["state"] & StateBit.MOVING)
 
     def record(self) -> None:
         while self.fb.try_recv() is not None:
@@ -93,19 +99,9 @@ def rel(dx=0.0, dy=0.0, dz=0.0) -> CarPosWithElbow:
 
 
 @pytest.fixture(scope="module", params=["iiwa", "panda"])
-def live(request):
-    with launched("--robot", request.param) as (proc, port), client_session(port) as session:
-        arm = Arm(session, request.param)
-        arm.proc = proc
-        arm.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
-        yield arm
-
-
-@pytest.fixture
-def arm(live: Arm) -> Arm:
-    live.reset()
-    live.record()
-    return live
+def robot_name(request) -> str:
+    """The robots of ``live`` and ``arm`` (conftest.py): one system each, with this module's ``Arm``."""
+    return request.param
 
 
 def line_deviation(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
@@ -191,12 +187,13 @@ def test_pause_stops_on_the_line_and_resume_reaches_the_target(arm: Arm):
     arm.ok(arm.middle(OP.setSpeedCartesian, {"spdRatio": 50}))
     arm.record()
     arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(*d)}))
-    time.sleep(0.5)
+    wait_until(lambda: np.linalg.norm(arm.pose()[:, 3] - p0) > 0.25 * np.linalg.norm(d), 10.0, 0.01,
+               "the LIN a quarter of the way")
     arm.ok(arm.middle(OP.pause))
     wait_until(lambda: arm.common(OP.getState)["state"] & StateBit.PAUSED, 2.0, what="paused bit")
-    time.sleep(0.6)
+    arm.servo_time.settled()  # braked to rest
     held = arm.pose()[:, 3]
-    time.sleep(0.3)
+    arm.servo_time.passes(HOLD_WINDOW)  # paused: nothing may move the arm in this window
     assert np.linalg.norm(arm.pose()[:, 3] - held) < 1e-5  # holds
     assert 0.02 < np.linalg.norm(held - p0) < np.linalg.norm(d) - 0.02  # mid-way
     arm.ok(arm.middle(OP.resume))
@@ -213,12 +210,13 @@ def test_stop_discards_the_queue(arm: Arm):
     step[0] = 0.3
     for _ in range(3):
         arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": tuple(step)}))
-    time.sleep(0.3)
+    wait_until(lambda: arm.joints()[0] - q0[0] > 0.02, 10.0, 0.01, "the first PTP under way")
     arm.ok(arm.middle(OP.stop))
     arm.idle()
+    arm.servo_time.settled()  # at rest, not creeping below the servo's rest speed
     q = arm.joints()[: arm.model.axis_num]
     assert q[0] - q0[0] < 0.3  # stopped during the first motion
-    time.sleep(0.3)
+    arm.servo_time.passes(HOLD_WINDOW)  # a motion the stop failed to discard would move the arm in it
     assert np.abs(arm.joints()[: arm.model.axis_num] - q).max() < 1e-4  # nothing else runs
     state = arm.common(OP.getState)["state"]
     assert not state & (StateBit.MOVING | StateBit.BUFFER_FULL | StateBit.PAUSED)
@@ -266,7 +264,8 @@ def test_refusals_change_nothing(arm: Arm):
     r = arm.middle(OP.setAccelTimeJoint, {"aclTime": arm.model.min_accel_time / 2})
     assert r.id == ReturnCode.VALUE_ERR
     assert arm.middle(OP.getMinAccelTimeJoint)["aclTime"] == pytest.approx(arm.model.min_accel_time)
-    time.sleep(0.2)
+    # Every refusal above was answered; a motion queued all the same would move the arm in this window.
+    arm.servo_time.passes(QUIET_WINDOW)
     assert np.abs(arm.joints() - q0).max() < 1e-4  # nothing moved
     assert not arm.common(OP.getState)["state"] & StateBit.MOVING
 
@@ -276,7 +275,7 @@ def test_soft_limit_joint_refused_while_moving(arm: Arm):
     step[0] = 0.4
     arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 20}))
     arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": tuple(step)}))
-    time.sleep(0.2)
+    wait_until(arm.servo_moving, 5.0, 0.01, "the arm moving (the servo's bit 0x02)")
     r = arm.common(OP.setSoftLimitJoint, {"softLimit": arm.model.hard_limits})
     assert r.id == ReturnCode.STATUS_ERR, r
     arm.idle()

@@ -39,7 +39,7 @@ from jara_arm.schema.planner import (
     PlanReply,
 )
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
-from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.kinematics import Kinematics
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 from jara_arm.services.planner.servo_fifo import FifoEstimate
 from jara_arm.services.runtime.zenoh_args import zenoh_config
@@ -50,6 +50,7 @@ pytestmark = pytest.mark.timeout(120)
 DT = 1e-3
 EXECUTED_TOL = 0.5e-3  # [m] executed path (FK of feedback) vs the ideal path
 PLANNED_TOL = 1e-6  # [m] commanded path (FK of posCmd) vs the ideal path
+HOLD_WINDOW = 0.2  # [s] of the servo's own time in which a paused arm must not move (an observation window)
 _ids = itertools.count(1)
 
 
@@ -148,12 +149,17 @@ class Rig:
         assert len(replies) == 1 and replies[0].ok is not None, replies
         return codec.loads(replies[0].ok.payload.to_bytes())
 
-    def progress(self) -> PlannerProgress:
+    def poll_progress(self) -> PlannerProgress | None:
+        """The newest ``Planner/progress`` (None before the first arrived)."""
         s = self._progress.try_recv()
         if s is not None:
             self.last_progress = codec.decode_message(PLANNER_PROGRESS, s.payload.to_bytes())
-        assert self.last_progress is not None
         return self.last_progress
+
+    def progress(self) -> PlannerProgress:
+        p = self.poll_progress()
+        assert p is not None
+        return p
 
     def pos(self) -> np.ndarray:
         return np.array(self.client.servo(OP.getFeedbackPosJoint)["pos"])
@@ -171,9 +177,40 @@ class Rig:
         return self.client.servo(OP.getState)["state"]
 
     # -- waiting and recording --------------------------------------------------------
+    def wait_status(self, what: str, predicate, timeout: float = 10.0) -> messages.ServoStatus:
+        """A servo status (the newest, polled) for which ``predicate`` holds."""
+        return wait_until(lambda: (st := self.status_now()) is not None and predicate(st) and st,
+                          timeout, 0.005, what)
+
+    def wait_along(self, a: np.ndarray, b: np.ndarray, fraction: float, timeout: float = 10.0) -> None:
+        """Until the servo's target puts the control point ``fraction`` of the way from ``a`` to ``b``."""
+        d = b - a
+        self.wait_status(f"the control point {fraction:.0%} of the way",
+                         lambda st: (self.tcp(st.target)[:3, 3] - a) @ d / (d @ d) >= fraction, timeout)
+
+    def servo_time_passes(self, seconds: float) -> None:
+        """Until the servo stamps a status ``seconds`` [s] after now (at rest, its cycle's wall-clock
+        deadline; a cycle never runs early): a window of the servo's own time."""
+        end = time.time() + seconds
+        self.wait_status(f"the servo's clock {seconds:g} s on", lambda st: st.tm.to_seconds() >= end,
+                         seconds + 5.0)
+
+    def wait_planner_sees_servo_on(self, timeout: float = 20.0) -> None:
+        """Until the planner plans from a servo status that says servo on.
+
+        The probe, a PTP with one joint too few, passes the planner's check of the servo
+        (NOT_SV_ON_ERR while it has not seen the servo on) and is then refused by the
+        planning itself (VALUE_ERR): nothing is queued either way.
+        """
+        probe = {"jointPoints": [0.0] * (self.n - 1)}
+        replies: list[Answer] = []
+        wait_until(lambda: replies.append(self.plan(OP.movePTPJointAbs, probe))
+                   or replies[-1].id == ReturnCode.VALUE_ERR, timeout, 0.01,
+                   "the planner to see the servo on", explain=lambda: f"last probe: {replies[-1:]}")
+
     def wait_progress(self, what: str, predicate, timeout: float = 10.0) -> PlannerProgress:
-        return wait_until(lambda: (lambda p: p if predicate(p) else None)(self.progress()), timeout,
-                          0.01, what)
+        return wait_until(lambda: (lambda p: p if p is not None and predicate(p) else None)(self.poll_progress()),
+                          timeout, 0.01, what)
 
     def wait_idle(self, timeout: float = 15.0) -> PlannerProgress:
         """Every accepted motion done or discarded, nothing streaming, the arm at rest."""
@@ -207,7 +244,7 @@ class Rig:
             wait_until(lambda: not self.state() & StateBit.MOVING, 5.0, what="the arm braked")
             self.client.servo(OP.clearAlarms)
             assert self.client.servo(OP.servoON).id == ReturnCode.OK
-            time.sleep(0.05)  # one status period: the planner sees the servo on
+            self.wait_planner_sees_servo_on()
         self.control(ControlAction.STOP)
         self.wait_idle()
         if np.abs(self.pos()[:self.n] - self.model.ready_pose).max() > 1e-3:
@@ -242,7 +279,7 @@ def start_rig(robot_name: str) -> Iterator[Rig]:
             wait_alive(session, "arm0", [Service.SERVO, Service.PLANNER], timeout=60.0)
             rig = Rig(robot_name, servo, planner, session)
             assert rig.client.servo(OP.servoON).id == ReturnCode.OK
-            time.sleep(0.1)
+            rig.wait_planner_sees_servo_on()
             yield rig
     finally:
         print("\n".join(line for line in planner.lines if "WARNING" in line or "ERROR" in line))
@@ -398,7 +435,7 @@ class TestIiwa:
         b = a + [0.0, 0.25, -0.1]
         reply = rig.ok(OP.moveLinearCartesianAbs, {"carPoint": car(pose(b, T0[:3, :3]))})
         rig.wait_progress("motion running", lambda p: p.running == reply.motion)
-        time.sleep(0.5)
+        rig.wait_along(a, b, 0.25)
         answer = rig.control(ControlAction.PAUSE)
         t_reply = time.time()
         assert answer["id"] == ReturnCode.OK and "pausing" in answer["comment"], answer
@@ -408,7 +445,7 @@ class TestIiwa:
         held = rig.tcp(rig.pos())[:3, 3]
         assert 0.02 < np.linalg.norm(held - a) < np.linalg.norm(b - a) - 0.02  # stopped mid-way
         assert rig.control(ControlAction.PAUSE)["comment"].startswith("OK: ignored")
-        time.sleep(0.2)
+        rig.servo_time_passes(HOLD_WINDOW)  # paused: nothing may move the arm in this window
         assert np.linalg.norm(rig.tcp(rig.pos())[:3, 3] - held) < 1e-5  # holds
         rec = rig.drain()
         # The deceleration reached the servo within 20 ms of the reply: the first command sent
@@ -441,7 +478,7 @@ class TestIiwa:
         first = rig.ok(OP.moveLinearCartesianAbs, {"carPoint": car(pose(b, T0[:3, :3]))})
         more = [rig.ok(OP.movePTPJointRel, {"jointPoints": [0.1] + [0.0] * 6}) for _ in range(2)]
         rig.wait_progress("motion running", lambda p: p.running == first.motion)
-        time.sleep(0.4)
+        rig.wait_along(a, b, 0.25)
         answer = rig.control(ControlAction.STOP)
         assert answer["id"] == ReturnCode.OK and "stopping" in answer["comment"], answer
         done = rig.wait_idle()
@@ -459,10 +496,11 @@ class TestIiwa:
         assert np.array_equal(again.endJoints, rec.cmd[-1])
 
     def test_servo_off_mid_motion_aborts(self, rig: Rig):
+        q0 = rig.target()
         reply = rig.ok(OP.movePTPJointRel, {"jointPoints": [0.5, 0, 0, 0, 0, 0, 0]}, spdRatioJoint=20)
         queued = rig.ok(OP.movePTPJointRel, {"jointPoints": [-0.5, 0, 0, 0, 0, 0, 0]})
         rig.wait_progress("motion running", lambda p: p.running == reply.motion)
-        time.sleep(0.3)
+        rig.wait_status("the arm under way (J1 0.05 rad on)", lambda st: st.target[0] - q0[0] > 0.05)
         assert rig.client.servo(OP.servoOFF).id == ReturnCode.OK
         p = rig.wait_progress("aborted", lambda p: not p.queued and not p.streaming, 2.0)
         assert p.lastDiscarded == queued.motion
@@ -498,7 +536,10 @@ class TestIiwa:
         _refused(rig, rig.plan(OP.moveLinearCartesianRel, {"carPoint": flagged}), "structFlag")
         ng = rig.plan(OP.closeGripper)
         assert ng.id == ReturnCode.NG and "no gripper" in ng.comment
-        time.sleep(0.1)
+        # Every refusal was answered; a progress message published after them comes from a
+        # streamer turn after them, and whatever it streamed before has arrived by then.
+        answered = time.time()
+        rig.wait_progress("a progress message after the refusals", lambda p: p.tm.to_seconds() > answered, 2.0)
         rec = rig.drain()
         assert len(rec.cmd) == 0  # nothing was sent
         after = rig.progress()

@@ -20,7 +20,7 @@ from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CartesianSpeed, LimitValue
 from jara_arm.services.planner import sampling
-from jara_arm.services.planner.kinematics import Kinematics
+from jara_arm.kinematics import Kinematics
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.sampling import BatchFk, HermiteSpline, batch_arm_angle, batch_log3
 

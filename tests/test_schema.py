@@ -292,6 +292,10 @@ def test_keys():
 def test_generated_schema_is_in_sync():
     assert generate.SCHEMA_FILE.read_text() == generate.render(), \
         "run: python -m jara_arm.schema.generate"
+    readme = generate.README_FILE.read_text()
+    assert readme == generate.render_readme(readme), "README's key table: run python -m jara_arm.schema.generate"
+    for row in keys.KEY_TABLE:  # every key of ArmKeys is in the README's table
+        assert f"| `{row.key}` |" in readme
     doc = json.loads(generate.SCHEMA_FILE.read_text())
     assert len(doc["x-operations"]["Common"]) == 9 and len(doc["x-operations"]["Middle"]) == 35
     assert doc["x-return-codes"]["NOT_IMPLEMENTED"] == -6

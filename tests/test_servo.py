@@ -28,6 +28,10 @@ DT = 1e-3
 IIWA = robot("iiwa")
 VMAX = np.array(IIWA.rated_speed)
 AMAX = np.array(IIWA.max_accel)
+#: [cycles] the servo runs after it took commands it must ignore, before "nothing moved" is
+#: checked: an applied command would have moved the arm by then (an observation window, of
+#: the servo's own cycles).
+IGNORED_WINDOW = 100
 
 
 class Rig:
@@ -85,6 +89,19 @@ class Rig:
         """The newest status, waiting for one (at rest the servo sends one every 100 ms)."""
         return wait_until(lambda: self.drain_status() or None, timeout, what="a servo status")[-1]
 
+    def status_where(self, predicate, what: str, timeout: float = 5.0) -> messages.ServoStatus:
+        """The first status (those already queued included) for which ``predicate`` holds,
+        waiting for it; the statuses before it, and those drained with it, are gone."""
+        return wait_until(lambda: next((st for st in self.drain_status() if predicate(st)), None),
+                          timeout, 0.005, what)
+
+    def took(self, received: int, what: str) -> None:
+        """Until the servo has taken ``received`` position commands off the wire since it started
+        (its status counts them, the ones it drops too), then run ``IGNORED_WINDOW`` more cycles."""
+        st = self.status_where(lambda s: s.received >= received, f"the servo to take {what}")
+        end = st.tm.to_seconds() + IGNORED_WINDOW * DT
+        self.status_where(lambda s: s.tm.to_seconds() >= end, f"{IGNORED_WINDOW} servo cycles after {what}")
+
     def wait_rest(self, timeout: float = 10.0) -> None:
         wait_until(lambda: not self.state() & StateBit.MOVING, timeout, what="the arm at rest")
 
@@ -95,7 +112,10 @@ class Rig:
         assert self.call(OP.clearAlarms).id == ReturnCode.OK
         assert self.call(OP.setSoftLimitJoint, {"softLimit": self.model.hard_limits}).id == ReturnCode.OK
         assert self.call(OP.servoON).id == ReturnCode.OK
-        time.sleep(0.05)
+        on = time.time()
+        # A status of a cycle after the servoON (a cycle never runs before its deadline, its tm):
+        # everything published before it has arrived, and is drained here.
+        self.status_where(lambda st: st.tm.to_seconds() > on and st.servoOn, "a status with the servo on")
         self.drain_feedback()
         self.drain_status()
 
@@ -219,9 +239,10 @@ def test_underrun_stops_smoothly(rig: Rig):
 def test_emergency_stop(rig: Rig):
     q0 = rig.pos()
     path = min_jerk(q0, q0 + np.array([0.8, 0, 0, 0, 0, 0, 0]), 1.5)
+    start = rig.newest_status().consumed
     for q in path[:700]:
         rig.send(q)
-    time.sleep(0.4)
+    rig.status_where(lambda st: st.consumed >= start + 400, "the arm 400 cycles into the move")
     t0 = time.monotonic()
     rig.session.put(rig.keys.estop, b"")
     wait_until(lambda: not rig.state() & StateBit.SERVO_ON, 1.0, 0.001, "servo off after e-stop")
@@ -235,9 +256,10 @@ def test_emergency_stop(rig: Rig):
     assert np.nanmax(np.abs(acc)) < AMAX[0] * 1.5  # a controlled stop: no jump
     assert fb[-1] < path[-1, 0] - 0.1  # stopped short of the target
     held = rig.pos()
+    received = rig.newest_status().received
     for q in path[700:]:
         rig.send(q)  # ignored: servo off
-    time.sleep(0.3)
+    rig.took(received + len(path[700:]), "the commands sent while off")
     assert np.abs(rig.pos() - held).max() < 1e-4
     refused = rig.call(OP.servoON)
     assert refused.id == ReturnCode.STATUS_ERR and "clear" in refused.comment
@@ -250,8 +272,10 @@ def test_servo_off_holds_and_ignores_commands(rig: Rig):
     assert rig.call(OP.servoOFF).id == ReturnCode.OK
     assert rig.state() == 0
     held = rig.pos()
-    rig.stream(min_jerk(held, held + 0.3, 0.3))
-    time.sleep(0.3)
+    received = rig.newest_status().received
+    path = min_jerk(held, held + 0.3, 0.3)
+    rig.stream(path)
+    rig.took(received + len(path), "the commands streamed while off")
     assert np.abs(rig.pos() - held).max() < 1e-4
     assert rig.state() == 0
 
@@ -294,7 +318,7 @@ def test_set_soft_limit_refused_while_moving_and_checked(rig: Rig):
     hard = IIWA.hard_limits
     for q in min_jerk(q0, q0 + np.array([0.5, 0, 0, 0, 0, 0, 0]), 1.0):
         rig.send(q)
-    time.sleep(0.2)
+    wait_until(lambda: rig.state() & StateBit.MOVING, 2.0, 0.005, "the arm moving")
     busy = rig.call(OP.setSoftLimitJoint, {"softLimit": hard})
     assert busy.id == ReturnCode.STATUS_ERR and "moving" in busy.comment
     rig.wait_rest()
@@ -334,10 +358,11 @@ def test_unknown_operation_and_json(rig: Rig):
 
 def test_malformed_position_commands_are_dropped(rig: Rig):
     held = rig.pos()
+    received = rig.newest_status().received
     rig.pub.put(b"\xc1")
     rig.pub.put(msgpack.packb({"tm": {"sec": 0, "nsec": 0}, "pos": [0.0] * 3}))  # wrong length
     rig.pub.put(msgpack.packb({"pos": list(held)}))  # no tm
-    time.sleep(0.2)
+    rig.took(received + 3, "the three malformed commands")
     assert rig.state() == StateBit.SERVO_ON
     assert np.abs(rig.pos() - held).max() < 1e-4
 

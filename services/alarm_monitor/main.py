@@ -5,23 +5,15 @@
 
 from __future__ import annotations
 
-import argparse
 import logging
-import threading
-from collections.abc import Sequence
 
-import zenoh
-
-from jara_arm.robots import RobotModel
 from jara_arm.schema.alarms import MONITOR_OPERATIONS
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.keys import Service
-from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import clear_reply, newest_copy
 from jara_arm.services.runtime.realtime import realtime_process
-from jara_arm.services.runtime.rpc import InterfaceServer, ok
-from jara_arm.services.runtime.timing import SAME_HOST, Health
-from jara_arm.services.runtime.service import announce, depart, run_service, service_session
+from jara_arm.services.runtime.rpc import ok
+from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 
 from .monitor import Monitor
 
@@ -47,39 +39,26 @@ class MonitorCommon:
         return ok(alarms=self.monitor.call(lambda: self.monitor.book.alarms))
 
 
-def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
-         health: Health = SAME_HOST, realtime_priority: int = DEFAULT_RT_PRIORITY) -> None:
-    with service_session(conf, arm, Service.ALARM_MONITOR) as (session, keys):
-        heartbeat = Heartbeat(session, keys, Service.ALARM_MONITOR, realtime_priority, health)
-        monitor = Monitor(session, keys, robot, heartbeat.pulse("the alarm monitor loop"), health)
-        monitor.take_over(newest_copy(session, keys))  # before its first (empty) list goes out
+class AlarmMonitorService(ArmService):
+    """The arm's active alarms: detection across services, reactions, ``Monitor/Common``."""
+
+    SERVICE = Service.ALARM_MONITOR
+    REALTIME_PRIORITY = DEFAULT_RT_PRIORITY
+    REALTIME_WHAT = "the monitor's threads (its thresholds are constants: detectors.py)"
+
+    def start(self, ctx: ServiceContext) -> None:
+        monitor = Monitor(ctx.session, ctx.keys, ctx.model, ctx.heartbeat().pulse("the alarm monitor loop"),
+                          ctx.health)
+        monitor.take_over(newest_copy(ctx.session, ctx.keys))  # before its first (empty) list goes out
         monitor.start()
-        heartbeat.start()
-        server = InterfaceServer(session, keys.monitor_common(), MONITOR_OPERATIONS, MonitorCommon(monitor),
-                                 "monitor-rpc")
-        # Every thread of the process (Zenoh's that bring the samples in, too): an alarm
-        # must not wait for the planner's or anyone's normal-priority work.
-        realtime_process(realtime_priority, "alarm monitor")
-        token = announce(session, keys, Service.ALARM_MONITOR)
-        log.info("alarm monitor up: arm %s, robot %s", arm, robot.name)
-        try:
-            while not stop.wait(0.2):
-                if not monitor.alive:
-                    raise RuntimeError("the alarm monitor thread died")
-        finally:
-            depart(stop, heartbeat, token)
-            heartbeat.close()
-            server.close()
-            monitor.stop()
-            log.info("alarm monitor down")
+        ctx.closing(monitor.stop)
+        ctx.watch("the alarm monitor thread", lambda: monitor.alive)
+        ctx.serve(ctx.keys, ctx.keys.monitor_common(), MONITOR_OPERATIONS, MonitorCommon(monitor), "monitor-rpc")
+        # Every thread of the process (Zenoh's that bring the samples in, too) at the monitor's
+        # priority: an alarm must not wait for the planner's or anyone's normal-priority work.
+        realtime_process(ctx.realtime_priority, "alarm monitor")
+        ctx.up(f"alarm monitor up: arm {ctx.keys.arm}, robot {ctx.model.name}")
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The monitor's own options (its thresholds are constants: ``detectors.py``)."""
-    parser.add_argument("--realtime-priority", type=int, default=DEFAULT_RT_PRIORITY, metavar="N",
-                        help="SCHED_FIFO priority of the monitor's threads, 1..99; 0 for normal "
-                        f"scheduling (default: {DEFAULT_RT_PRIORITY})")
-
-
-def run(argv: Sequence[str] | None = None) -> int:
-    return run_service(Service.ALARM_MONITOR, __doc__.splitlines()[0], main, argv, add_arguments)
+PROGRAM = AlarmMonitorService
+run = entry(PROGRAM)

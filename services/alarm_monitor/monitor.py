@@ -30,7 +30,7 @@ from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.keys import ArmKeys, Service, parse_alive, parse_heartbeat
 from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
-from jara_arm.services.planner.kinematics import Kinematics, hg_to_se3
+from jara_arm.kinematics import Kinematics, hg_to_se3
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.timing import MONITOR_POLL, SAME_HOST, Health
 

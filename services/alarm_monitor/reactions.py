@@ -17,7 +17,6 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
 
 import zenoh
 
@@ -28,6 +27,7 @@ from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.planner import CONTROL_REQUEST, ControlAction, ControlRequest
 from jara_arm.schema.types import Alarm
+from jara_arm.services.runtime.ask import Asker, Silence
 
 log = logging.getLogger(__name__)
 
@@ -38,9 +38,9 @@ REACTION_TIMEOUT = 0.5
 class _Worker:
     """Queries to one peer, one at a time, in order."""
 
-    def __init__(self, session: zenoh.Session, name: str) -> None:
-        self._session = session
+    def __init__(self, session: zenoh.Session, name: str, keys: tuple[str, ...]) -> None:
         self._name = name
+        self._askers = {key: Asker(session, key, REACTION_TIMEOUT) for key in keys}
         self._queue: queue.SimpleQueue[tuple[str, bytes, str] | None] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._run, name=f"react-{name}", daemon=True)
         self._thread.start()
@@ -51,25 +51,20 @@ class _Worker:
     def close(self) -> None:
         self._queue.put(None)
         self._thread.join(timeout=2 * REACTION_TIMEOUT)
+        for asker in self._askers.values():
+            asker.close()
 
     def _run(self) -> None:
         while (job := self._queue.get()) is not None:
             key, payload, what = job
             try:
-                answered = False
-                start = time.monotonic()
-                for reply in self._session.get(key, payload=payload, timeout=REACTION_TIMEOUT,
-                                                  attachment=codec.deadline_attachment(REACTION_TIMEOUT)):
-                    if reply.ok is not None:
-                        body = codec.loads(reply.ok.payload.to_bytes())
-                        answered = True
-                        log.info("%s: %s answered %s", what, self._name,
-                                 body.get("comment") if isinstance(body, dict) else body)
-                if not answered and time.monotonic() - start < 0.9 * REACTION_TIMEOUT:
-                    log.warning("%s: no %s answers (gone?)", what, self._name)
-                elif not answered:
-                    log.warning("%s: the %s did not answer within %.1f s", what, self._name,
-                                REACTION_TIMEOUT)
+                got = self._askers[key].ask(payload)
+                if isinstance(got, Silence):
+                    log.warning("%s: the %s: %s", what, self._name, got.why)
+                    continue
+                body = codec.loads(got.payload, got.encoding)
+                log.info("%s: %s answered %s", what, self._name,
+                         body.get("comment") if isinstance(body, dict) else body)
             except Exception as exc:  # a reaction that fails must not stop the next ones
                 log.warning("%s: query to the %s failed: %s", what, self._name, exc)
 
@@ -79,8 +74,8 @@ class Reactions:
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
         self._keys = keys
-        self._servo = _Worker(session, "servo")
-        self._planner = _Worker(session, "planner")
+        self._servo = _Worker(session, "servo", (keys.servo_common(OP.servoOFF),))
+        self._planner = _Worker(session, "planner", (keys.planner_control,))
 
     def react(self, alarm: Alarm) -> None:
         what = f"alarm {format_code(alarm.code)} {alarm.type.value}"

@@ -9,7 +9,6 @@ of the system is missing.
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -24,48 +23,41 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import COMMON
 from jara_arm.schema.planner import (CONTROL_REQUEST, MOTION_REQUEST, ControlAction, ControlRequest,
                                      MotionRequest)
+from jara_arm.services.runtime.ask import Answer, Asker
 from jara_arm.services.runtime.timing import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT
 
 log = logging.getLogger(__name__)
 
 
-
 class _Peer:
-    """One query, one reply, from a service that may be absent."""
+    """Queries to one service that may be absent: an :class:`Asker` per key."""
 
-    def __init__(self, session: zenoh.Session, service: Service) -> None:
-        self._session = session
+    def __init__(self, session: zenoh.Session, service: Service, timeouts: Mapping[str, float]) -> None:
         self.service = service
+        self._askers = {key: Asker(session, key, timeout) for key, timeout in timeouts.items()}
 
-    def query(self, key: str, payload: bytes, timeout: float) -> tuple[bytes, Encoding] | Reply:
-        """The reply payload and its encoding, or an NG reply saying that nobody answered."""
-        start = time.monotonic()
-        try:
-            for reply in self._session.get(key, payload=payload, timeout=timeout,
-                                              attachment=codec.deadline_attachment(timeout)):
-                if reply.ok is not None:
-                    return reply.ok.payload.to_bytes(), Encoding.of(reply.ok.encoding)
-                log.warning("%s answered %s with an error: %s", self.service.value, key, reply.err)
-        except zenoh.ZError as exc:
-            return Reply(ReturnCode.NG, f"the query to the {self.service.value} service on {key} "
-                         f"failed: {exc}")
-        if time.monotonic() - start < 0.9 * timeout:  # Zenoh knew at once that nobody serves the key
-            return Reply(ReturnCode.NG, f"the {self.service.value} service does not answer {key}: "
-                         "is it running?")
-        return Reply(ReturnCode.NG, f"the {self.service.value} service did not answer {key} "
-                     f"within {timeout:g} s")
+    def query(self, key: str, payload: bytes) -> Answer | Reply:
+        """The reply, or an NG reply saying that nobody answered (naming the service and the key)."""
+        got = self._askers[key].ask(payload)
+        if isinstance(got, Answer):
+            return got
+        return Reply(ReturnCode.NG, f"the {self.service.value} service: {got.why}")
 
     def malformed(self, key: str, exc: WireError) -> Reply:
         log.error("%s sent a malformed reply on %s: %s", self.service.value, key, exc)
         return Reply(ReturnCode.NG, f"the {self.service.value} service sent a malformed reply on "
                      f"{key}: {exc}")
 
+    def close(self) -> None:
+        for asker in self._askers.values():
+            asker.close()
+
 
 class ServoLink(_Peer):
     """``Servo/Common/<op>`` of the low level, through the schema."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, timeout: float = SERVO_TIMEOUT) -> None:
-        super().__init__(session, Service.SERVO)
+        super().__init__(session, Service.SERVO, {keys.servo_common(name): timeout for name in COMMON})
         self._keys = keys
         self.timeout = timeout
 
@@ -73,11 +65,11 @@ class ServoLink(_Peer):
         """The servo's reply to Common operation ``name`` (outs decoded), or NG if it is silent."""
         op = COMMON[name]
         key = self._keys.servo_common(name)
-        got = self.query(key, codec.encode_request(op, args), self.timeout)
+        got = self.query(key, codec.encode_request(op, args))
         if isinstance(got, Reply):
             return got
         try:
-            return codec.decode_reply(op, *got)
+            return codec.decode_reply(op, got.payload, got.encoding)
         except WireError as exc:
             return self.malformed(key, exc)
 
@@ -87,7 +79,8 @@ class PlannerLink(_Peer):
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, plan_timeout: float = PLAN_TIMEOUT,
                  control_timeout: float = CONTROL_TIMEOUT) -> None:
-        super().__init__(session, Service.PLANNER)
+        super().__init__(session, Service.PLANNER, {keys.planner_plan: plan_timeout,
+                                                     keys.planner_control: control_timeout})
         self._keys = keys
         self.plan_timeout = plan_timeout
         self.control_timeout = control_timeout
@@ -95,14 +88,13 @@ class PlannerLink(_Peer):
     def plan(self, request: MotionRequest) -> Reply:
         """The planner's verdict on one motion (its id and comment, passed on to the client)."""
         key = self._keys.planner_plan
-        got = self.query(key, codec.encode_message(MOTION_REQUEST, request), self.plan_timeout)
-        return got if isinstance(got, Reply) else self._return_id(key, *got)
+        got = self.query(key, codec.encode_message(MOTION_REQUEST, request))
+        return got if isinstance(got, Reply) else self._return_id(key, got.payload, got.encoding)
 
     def control(self, action: ControlAction) -> Reply:
         key = self._keys.planner_control
-        got = self.query(key, codec.encode_message(CONTROL_REQUEST, ControlRequest(action.value)),
-                         self.control_timeout)
-        return got if isinstance(got, Reply) else self._return_id(key, *got)
+        got = self.query(key, codec.encode_message(CONTROL_REQUEST, ControlRequest(action.value)))
+        return got if isinstance(got, Reply) else self._return_id(key, got.payload, got.encoding)
 
     def _return_id(self, key: str, payload: bytes, encoding: Encoding) -> Reply:
         """``{id, comment}`` of a planner reply; a ``PlanReply`` refusal may carry nothing else."""

@@ -1,1 +1,1 @@
-"""Planner service: paths, Ruckig timing, Pinocchio kinematics, the position-command stream."""
+"""Planner service: paths, Ruckig timing, the position-command stream (kinematics: jara_arm.kinematics)."""

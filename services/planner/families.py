@@ -63,7 +63,7 @@ from numpy.typing import NDArray
 
 from jara_arm.robots import Family, RobotModel
 
-from .kinematics import FULL_MASK, Kinematics, Mask
+from jara_arm.kinematics import FULL_MASK, Kinematics, Mask
 
 #: Components of a pose task: positions x, y, z, rotations rx, ry, rz (arm base frame axes).
 _XY: Mask = (True, True, False, False, False, False)

@@ -54,7 +54,7 @@ from jara_arm.schema.types import CarPosWithElbow
 
 from . import families
 from .families import CartesianKind, CartesianRule, Orientation
-from .kinematics import Kinematics, KinematicsError, hg_to_se3
+from jara_arm.kinematics import Kinematics, KinematicsError, hg_to_se3
 from .paths import CartesianArc, CartesianLine, PathGeometryError
 from .profile import (
     PathMotion,

@@ -40,7 +40,7 @@ import numpy as np
 import pinocchio as pin
 from numpy.typing import NDArray
 
-from .kinematics import Kinematics, Mask
+from jara_arm.kinematics import Kinematics, Mask
 
 Array = NDArray[np.float64]
 
@@ -117,7 +117,7 @@ class BatchFk:
             fid = m.getFrameId(robot.flange_frame)
         self._flange = m.frames[fid].placement.copy()
         self._flange_joint = int(m.frames[fid].parentJoint)
-        self._elbow = kin._elbow  # joint ids of shoulder, elbow, wrist (7 axes), else None
+        self._elbow = kin.elbow_joint_ids  # joint ids of shoulder, elbow, wrist (7 axes), else None
 
     def run(self, q: Array, tool: Array | None) -> tuple[Array, Array, Array | None]:
         """Control point positions (N, 3), rotations (N, 3, 3) and S, E, W points (3, N, 3) or None."""
@@ -168,7 +168,7 @@ def batch_log3(Ra: Array, Rb: Array) -> Array:
 
 
 def batch_arm_angle(sew: Array) -> Array:
-    """Arm angles (N,) [rad] of shoulder, elbow, wrist points (3, N, 3); see ``kinematics.arm_angle``."""
+    """Arm angles (N,) [rad] of shoulder, elbow, wrist points (3, N, 3), as ``jara_arm.kinematics.arm_angle``."""
     s, e, w = sew
     u = w - s
     u /= np.linalg.norm(u, axis=1)[:, None]

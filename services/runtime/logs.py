@@ -43,7 +43,9 @@ class ZenohLogHandler(logging.Handler):
                  also: tuple[ArmKeys, ...] = ()) -> None:
         super().__init__()
         self._service = service
-        self._by_arm = {k.arm: session.declare_publisher(k.log(service)) for k in also if k.arm != keys.arm}
+        # looked up by a record's arm, None when it names none (then the main publisher)
+        self._by_arm: dict[str | None, zenoh.Publisher] = {
+            k.arm: session.declare_publisher(k.log(service)) for k in also if k.arm != keys.arm}
         self._pending: collections.deque[logging.LogRecord] = collections.deque(maxlen=_QUEUE_LIMIT)
         self._wake = threading.Event()
         self._closed = False

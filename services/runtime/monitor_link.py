@@ -21,12 +21,13 @@ import zenoh
 
 from jara_arm.schema import codec
 from jara_arm.schema.alarms import ALARM_LIST, MONITOR_OPERATIONS, AlarmList, format_code
-from jara_arm.schema.codec import Encoding, Reply
+from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm
 
+from .ask import Answer, Asker, Silence
 from .rpc import ok, refuse
 from .timing import MONITOR_TIMEOUT
 
@@ -55,19 +56,21 @@ class MonitorLink:
     """``Monitor/Common/<op>`` and ``Monitor/alarms`` of one arm; usable from any thread."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, timeout: float = MONITOR_TIMEOUT) -> None:
-        self._session = session
         self._keys = keys
         self.timeout = timeout
+        self._askers = {key: Asker(session, key, timeout)
+                        for key in (*(keys.monitor_common(op) for op in MONITOR_OPERATIONS), keys.monitor_alarms)}
 
-    def _get(self, key: str, payload: bytes) -> tuple[bytes, Encoding] | None:
-        try:
-            for reply in self._session.get(key, payload=payload, timeout=self.timeout,
-                                              attachment=codec.deadline_attachment(self.timeout)):
-                if reply.ok is not None:
-                    return reply.ok.payload.to_bytes(), Encoding.of(reply.ok.encoding)
-        except zenoh.ZError as exc:
-            log.warning("query to the alarm monitor on %s failed: %s", key, exc)
-        return None
+    def _get(self, key: str, payload: bytes) -> Answer | None:
+        got = self._askers[key].ask(payload)
+        if isinstance(got, Silence):
+            log.debug("the alarm monitor: %s", got.why)
+            return None
+        return got
+
+    def close(self) -> None:
+        for asker in self._askers.values():
+            asker.close()
 
     def call(self, name: str) -> Reply | None:
         """The monitor's reply to ``name`` (getActiveAlarm or clearAlarms); None if it did not answer."""
@@ -77,7 +80,7 @@ class MonitorLink:
         if got is None:
             return None
         try:
-            return codec.decode_reply(op, *got)
+            return codec.decode_reply(op, got.payload, got.encoding)
         except WireError as exc:
             log.error("the alarm monitor sent a malformed reply on %s: %s", key, exc)
             return None
@@ -88,7 +91,8 @@ class MonitorLink:
         if got is None:
             return None
         try:
-            return codec.decode_message(ALARM_LIST, *got)
+            alarms: AlarmList = codec.decode_message(ALARM_LIST, got.payload, got.encoding)
+            return alarms
         except WireError as exc:
             log.error("the alarm monitor sent a malformed alarm list: %s", exc)
             return None
@@ -125,18 +129,17 @@ class AlarmListCopy:
 
 def newest_copy(session: zenoh.Session, keys: ArmKeys, timeout: float = MONITOR_TIMEOUT) -> AlarmList | None:
     """The newest list the servo and the command service hold (see :class:`AlarmListCopy`); None if none."""
+    asker = Asker(session, keys.alarm_copy(), timeout, target=zenoh.QueryTarget.ALL)
     newest: AlarmList | None = None
     try:
-        for reply in session.get(keys.alarm_copy(), timeout=timeout):
-            if reply.ok is None:
-                continue
+        for answer in asker.ask_all():
             try:
-                candidate = codec.decode_message(ALARM_LIST, reply.ok.payload.to_bytes())
+                candidate = codec.decode_message(ALARM_LIST, answer.payload, answer.encoding)
             except WireError as exc:
-                log.error("ignored a malformed alarm list copy from %s: %s", reply.ok.key_expr, exc)
+                log.error("ignored a malformed alarm list copy from %s: %s", answer.key, exc)
                 continue
             if is_newer(candidate, newest):
                 newest = candidate
-    except zenoh.ZError as exc:
-        log.warning("query of the alarm list copies failed: %s", exc)
+    finally:
+        asker.close()
     return newest

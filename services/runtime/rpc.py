@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import zenoh
@@ -66,7 +66,7 @@ def answer(op: Operation | None, payload: bytes, encoding: Encoding, handler: ob
     except WireError as exc:
         return refuse(ReturnCode.VALUE_ERR, str(exc))
     try:
-        reply = getattr(handler, op.name)(**args)
+        reply: Reply = getattr(handler, op.name)(**args)
     except WireError as exc:  # a handler's own check of a value, field named
         return refuse(ReturnCode.VALUE_ERR, str(exc))
     except Exception as exc:  # a bug of ours must not kill the service or leave a query unanswered
@@ -75,17 +75,22 @@ def answer(op: Operation | None, payload: bytes, encoding: Encoding, handler: ob
     return reply
 
 
-class InterfaceServer:
-    """Queryable ``key_all`` (``.../<Interface>/*``) answered by ``handler``."""
+#: ``(query's key, payload, encoding) -> (reply's key, reply body)``: one endpoint's answer.
+Answer = Callable[[str, bytes, Encoding], tuple[str, bytes]]
 
-    def __init__(self, session: zenoh.Session, key_all: str, table: Mapping[str, Operation],
-                 handler: object, name: str = "rpc") -> None:
-        missing = [op for op in table if not callable(getattr(handler, op, None))]
-        if missing:
-            raise TypeError(f"{type(handler).__name__} lacks operations {missing}")
-        self._table, self._handler = table, handler
-        self._base = key_all.rsplit("/", 1)[0]  # replies name the concrete key, e.g. for JARA_ARM/*/... queries
-        self._queryable = session.declare_queryable(key_all, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
+
+class QueryServer:
+    """Queryable ``key`` answered by ``answer`` on one worker thread, in the order of the queries.
+
+    The one query loop of the project: a query whose requester already gave up
+    (:func:`expired`) is dropped unanswered, an exception in ``answer`` is logged
+    (the caller times out; the service lives on), and every query is finished
+    (``drop``) at once, not at garbage collection.
+    """
+
+    def __init__(self, session: zenoh.Session, key: str, answer: Answer, name: str) -> None:
+        self._answer = answer
+        self._queryable = session.declare_queryable(key, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
         self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
         self._thread.start()
 
@@ -100,29 +105,14 @@ class InterfaceServer:
                     log.warning("dropped %s unanswered: its requester gave up %.0f ms ago (this service was "
                                 "held up, or the clocks differ)", query.key_expr, late * 1e3)
                     continue
-                self._reply(query)
+                encoding = Encoding.of(query.encoding)
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                key, body = self._answer(str(query.key_expr), payload, encoding)
+                query.reply(key, body, encoding=_ZENOH_ENCODING[encoding])
             except Exception:
                 log.exception("could not reply to %s", query.key_expr)
             finally:
                 query.drop()  # sends the final reply marker now, not at garbage collection
-
-    def _reply(self, query: zenoh.Query) -> None:
-        name = op_of(query.key_expr)
-        encoding = Encoding.of(query.encoding)
-        payload = query.payload.to_bytes() if query.payload is not None else b""
-        op = self._table.get(name)
-        reply = answer(op, payload, encoding, self._handler, name)
-        if op is None:
-            body = codec.dumps({"id": int(reply.id), "comment": reply.comment}, encoding)
-        else:
-            try:
-                body = codec.encode_reply(op, reply, encoding)
-            except Exception as exc:
-                log.exception("%s produced a reply that cannot be encoded", name)
-                body = codec.dumps({"id": int(ReturnCode.NG),
-                                    "comment": f"internal error in {name}: {exc}"}, encoding)
-        key = f"{self._base}/{name}" if op is not None else query.key_expr
-        query.reply(key, body, encoding=_ZENOH_ENCODING[encoding])
 
     def close(self) -> None:
         """Stop serving. The worker may sit in ``recv()``, which holds the queryable; it
@@ -137,3 +127,31 @@ class InterfaceServer:
         """Wait for the worker to end (after the session closed): a thread still inside
         Zenoh's ``recv()`` when the interpreter exits aborts the process."""
         self._thread.join(timeout)
+        if self._thread.is_alive():
+            log.warning("query worker %s did not end", self._thread.name)
+
+
+class InterfaceServer(QueryServer):
+    """Queryable ``key_all`` (``.../<Interface>/*``) answered by ``handler``, one method per operation."""
+
+    def __init__(self, session: zenoh.Session, key_all: str, table: Mapping[str, Operation],
+                 handler: object, name: str = "rpc") -> None:
+        missing = [op for op in table if not callable(getattr(handler, op, None))]
+        if missing:
+            raise TypeError(f"{type(handler).__name__} lacks operations {missing}")
+        self._table, self._handler = table, handler
+        self._base = key_all.rsplit("/", 1)[0]  # replies name the concrete key, e.g. for JARA_ARM/*/... queries
+        super().__init__(session, key_all, self._answer_operation, name)
+
+    def _answer_operation(self, key: str, payload: bytes, encoding: Encoding) -> tuple[str, bytes]:
+        name = op_of(key)
+        op = self._table.get(name)
+        reply = answer(op, payload, encoding, self._handler, name)
+        if op is None:
+            return key, codec.dumps({"id": int(reply.id), "comment": reply.comment}, encoding)
+        try:
+            body = codec.encode_reply(op, reply, encoding)
+        except Exception as exc:
+            log.exception("%s produced a reply that cannot be encoded", name)
+            body = codec.dumps({"id": int(ReturnCode.NG), "comment": f"internal error in {name}: {exc}"}, encoding)
+        return f"{self._base}/{name}", body

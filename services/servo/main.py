@@ -6,12 +6,9 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
-import threading
 from collections.abc import Sequence
 
-import zenoh
 
 from jara_arm.robots import DEFAULT_ROBOT, Obstacle, RobotModel, RobotModelError
 from jara_arm.robots import robot as robot_model
@@ -22,12 +19,9 @@ from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.keys import ArmKeys, Service, check_arm
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
-from jara_arm.services.runtime.heartbeat import Heartbeat
 from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
-from jara_arm.services.runtime.realtime import realtime_process
-from jara_arm.services.runtime.rpc import InterfaceServer, ok, refuse
-from jara_arm.services.runtime.timing import SAME_HOST, Health
-from jara_arm.services.runtime.service import announce, depart, run_service, service_session
+from jara_arm.services.runtime.rpc import ok, refuse
+from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 
 from .clock import DEFAULT_RT_PRIORITY, ServoClock
 from .loop import ServoLoop
@@ -115,75 +109,57 @@ def check_soft_limits(limits: Sequence[LimitValue], model: RobotModel) -> None:
                             f"[{hard.lower}, {hard.upper}] of J{i + 1}")
 
 
-@dataclasses.dataclass
-class _ArmServo:
-    """One arm's part of the servo process: its loop, heartbeat, interface and token."""
+class ServoService(ArmService):
+    """The servo process: one real-time clock thread for every arm it serves, each arm with its
+    loop, ``Servo/Common``, heartbeat and token."""
 
-    keys: ArmKeys
-    loop: ServoLoop
-    heartbeat: Heartbeat
-    server: InterfaceServer | None = None
-    token: zenoh.LivelinessToken | None = None
+    SERVICE = Service.SERVO
+    REALTIME_PRIORITY = DEFAULT_RT_PRIORITY
+    REALTIME_WHAT = "the clock thread (the process's other threads: one less)"
 
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--with-arm", type=arm_argument, action="append", metavar="ID:ROBOT",
+                            help="another arm this process serves, on the same real-time clock thread "
+                            "(repeatable; what `jara-arm up` does with several arms)")
+        parser.add_argument("--obstacle", type=obstacle_argument, action="append", metavar="X,Y,Z,HX,HY,HZ",
+                            help="a fixed box in the simulated world: centre and half extents [m] in the "
+                            "world frame (repeatable; added to the robot model's own obstacles)")
 
-def main(conf: zenoh.Config, arm: str, robot: RobotModel, stop: threading.Event,
-         health: Health = SAME_HOST, realtime_priority: int = DEFAULT_RT_PRIORITY,
-         obstacle: Sequence[Obstacle] | None = None,
-         with_arm: Sequence[tuple[str, RobotModel]] | None = None) -> None:
-    """The servo of ``arm`` and of every ``with_arm``: one process, one real-time clock thread."""
-    arms = [(arm, robot), *(with_arm or ())]
-    ids = [a for a, _ in arms]
-    if len(set(ids)) != len(ids):
-        raise ValueError(f"an arm is given twice: {', '.join(ids)}")
-    with service_session(conf, arm, Service.SERVO, also=tuple(ids)) as (session, _):
-        parts = []
-        for arm_id, model in arms:
-            keys = ArmKeys(arm_id)
-            heartbeat = Heartbeat(session, keys, Service.SERVO, max(0, realtime_priority - 1), health)
-            loop = ServoLoop(model, session, keys, tuple(obstacle or ()), heartbeat.pulse("the servo loop"),
-                             health)
-            parts.append(_ArmServo(keys, loop, heartbeat))
-        clock = ServoClock([p.loop for p in parts], realtime_priority)
+    def arms(self, arm: str, model: RobotModel, options: argparse.Namespace) -> list[tuple[str, RobotModel]]:
+        arms = [(arm, model), *(options.with_arm or ())]
+        ids = [a for a, _ in arms]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"an arm is given twice: {', '.join(ids)}")
+        return arms
+
+    def start(self, ctx: ServiceContext) -> None:
+        obstacles = tuple(ctx.options.obstacle or ())
+        loops = []
+        for arm, model in ctx.arms:
+            loop = ServoLoop(model, ctx.session, ArmKeys(arm), obstacles,
+                             ctx.heartbeat(arm).pulse("the servo loop"), ctx.health)
+            ctx.closing(loop.close)
+            loops.append(loop)
+        clock = ServoClock(loops, ctx.realtime_priority)
         clock.start()
-        for p in parts:
-            p.heartbeat.start()
-            common = ServoCommon(p.loop, MonitorLink(session, p.keys))
-            p.server = InterfaceServer(session, p.keys.servo_common(), COMMON, common,
-                                       f"servo-rpc-{p.keys.arm}")
+        ctx.closing(clock.stop)  # stopped before the loops close (the reverse order)
+        ctx.watch("the servo clock thread", lambda: clock.alive, lambda: clock.failed)
+        ids = [a for a, _ in ctx.arms]
+        for loop in loops:
+            keys = ArmKeys(loop.arm)
+            common = ServoCommon(loop, MonitorLink(ctx.session, keys))
+            ctx.serve(keys, keys.servo_common(), COMMON, common, f"servo-rpc-{keys.arm}")
             if common.refresh():  # a restarted servo knows the active alarms before it says it is up
                 log.info("active alarms from the alarm monitor: %s",
-                         ", ".join(format_code(a.code) for a in p.loop.monitor_alarms) or "none",
-                         extra={"arm": p.keys.arm})
-            p.token = announce(session, p.keys, Service.SERVO)
-        # Zenoh's receive threads feed the FIFO: starved, they make it run dry.
-        realtime_process(max(0, realtime_priority - 1), "servo")
-        for p in parts:
-            m = p.loop.model
-            log.info("servo up: arm %s, robot %s (%d axes%s), cycle %d ms%s", p.keys.arm, m.name, m.axis_num,
-                     " + gripper" if m.has_gripper else "", m.cmd_cycle_ms,
-                     f"; one clock for arms {', '.join(ids)}" if len(ids) > 1 else "", extra={"arm": p.keys.arm})
-            for box in p.loop.world.obstacles:
-                log.info("obstacle: box at %s m, half extents %s m", box.position, box.half_extents,
-                         extra={"arm": p.keys.arm})
-        try:
-            while not stop.wait(0.2):
-                if not clock.alive:
-                    raise RuntimeError("the servo clock thread died") from clock.failed
-        finally:
-            for p in parts:
-                if p.token is not None:
-                    depart(stop, p.heartbeat, p.token)
-            for p in parts:
-                p.heartbeat.close()
-                if p.server is not None:
-                    p.server.close()
-            clock.stop()
-            for p in parts:
-                p.loop.close()
-            log.info("servo down")
-    for p in parts:
-        if p.server is not None:
-            p.server.join()
+                         ", ".join(format_code(a.code) for a in loop.monitor_alarms) or "none",
+                         extra={"arm": keys.arm})
+            m = loop.model
+            ctx.up(f"servo up: arm {keys.arm}, robot {m.name} ({m.axis_num} axes"
+                   f"{' + gripper' if m.has_gripper else ''}), cycle {m.cmd_cycle_ms} ms"
+                   + (f"; one clock for arms {', '.join(ids)}" if len(ids) > 1 else ""), keys.arm)
+            for box in loop.world.obstacles:
+                ctx.up(f"obstacle: box at {box.position} m, half extents {box.half_extents} m", keys.arm)
 
 
 def arm_argument(text: str) -> tuple[str, RobotModel]:
@@ -204,17 +180,5 @@ def obstacle_argument(text: str) -> Obstacle:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--realtime-priority", type=int, default=DEFAULT_RT_PRIORITY,
-                        metavar="N", help="SCHED_FIFO priority of the clock thread, 1..99; 0 for "
-                        f"normal scheduling (default: {DEFAULT_RT_PRIORITY})")
-    parser.add_argument("--with-arm", type=arm_argument, action="append", metavar="ID:ROBOT",
-                        help="another arm this process serves, on the same real-time clock thread "
-                        "(repeatable; what `jara-arm up` does with several arms)")
-    parser.add_argument("--obstacle", type=obstacle_argument, action="append", metavar="X,Y,Z,HX,HY,HZ",
-                        help="a fixed box in the simulated world: centre and half extents [m] in the "
-                        "world frame (repeatable; added to the robot model's own obstacles)")
-
-
-def run(argv: Sequence[str] | None = None) -> int:
-    return run_service(Service.SERVO, __doc__.splitlines()[0], main, argv, add_arguments)
+PROGRAM = ServoService
+run = entry(PROGRAM)
