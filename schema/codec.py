@@ -64,7 +64,11 @@ def decode_request(op: Operation, payload: bytes, encoding: Encoding = Encoding.
     """The ``in`` parameters of ``op`` by name, strictly checked."""
     if not payload and not op.inputs:
         return {}
-    value = loads(payload, encoding)
+    return decode_args(op, loads(payload, encoding))
+
+
+def decode_args(op: Operation, value: Any) -> dict[str, Any]:
+    """The ``in`` parameters of ``op`` from their wire form (a map already parsed), strictly checked."""
     if not isinstance(value, dict):
         raise WireError("payload", f"expected a map of the in parameters of {op.name}, "
                         f"got {type(value).__name__}")

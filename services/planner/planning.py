@@ -140,7 +140,7 @@ class MotionPlanner:
             raise PlanRefused(ReturnCode.STATUS_ERR, f"start joints have {start.size} axes, "
                               f"the robot {self.model.dof}")
         try:
-            args = codec.decode_request(op, codec.dumps(req.args))
+            args = codec.decode_args(op, req.args)  # wire form to typed, no second serialisation
             self._check_settings(req.settings)
             return self._dispatch(req, op.name, args, start)
         except WireError as exc:
