@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import contextlib
 import logging
 import threading
 import time
@@ -77,17 +78,19 @@ class Monitor:
         self._n = n
         self.watches = {s: ServiceWatch(s, health) for s in (Service.SERVO, Service.PLANNER, Service.COMMAND)}
         ring, fifo = zenoh.handlers.RingChannel, zenoh.handlers.FifoChannel
-        self._estop = session.declare_subscriber(keys.estop, fifo(64))
-        self._reports = session.declare_subscriber(keys.monitor_report, fifo(1024))
-        self._alive = session.liveliness().declare_subscriber(keys.alive(), fifo(256), history=True)
+        self._entities = contextlib.ExitStack()
+        enter = self._entities.enter_context
+        self._estop = enter(session.declare_subscriber(keys.estop, fifo(64)))
+        self._reports = enter(session.declare_subscriber(keys.monitor_report, fifo(1024)))
+        self._alive = enter(session.liveliness().declare_subscriber(keys.alive(), fifo(256), history=True))
         # Servo/status (100 Hz) carries the measured joints too: Servo/posFeedback (1 kHz) would
         # cost the monitor and the router ten times the work for no alarm sooner than 10 ms.
-        self._status = session.declare_subscriber(keys.servo_status, fifo(256))
-        self._heartbeats = session.declare_subscriber(keys.heartbeat(), fifo(1024))
-        self._settings_sub = session.declare_subscriber(keys.command_settings, ring(1))
-        self._event_pub = session.declare_publisher(keys.alarm, express=True)
-        self._list_pub = session.declare_publisher(keys.monitor_alarms, express=True)
-        self._list_q = session.declare_queryable(keys.monitor_alarms, fifo(64))
+        self._status = enter(session.declare_subscriber(keys.servo_status, fifo(256)))
+        self._heartbeats = enter(session.declare_subscriber(keys.heartbeat(), fifo(1024)))
+        self._settings_sub = enter(session.declare_subscriber(keys.command_settings, ring(1)))
+        self._event_pub = enter(session.declare_publisher(keys.alarm, express=True))
+        self._list_pub = enter(session.declare_publisher(keys.monitor_alarms, express=True))
+        self._list_q = enter(session.declare_queryable(keys.monitor_alarms, fifo(64)))
         self._reactions = Reactions(session, keys)
         self._calls: collections.deque[tuple[Callable[[], object], concurrent.futures.Future]] = \
             collections.deque()
@@ -123,12 +126,7 @@ class Monitor:
         self._stop.set()
         self._thread.join(timeout=2.0)
         self._reactions.close()
-        for entity in (self._estop, self._reports, self._alive, self._status, self._heartbeats,
-                       self._settings_sub, self._event_pub, self._list_pub, self._list_q):
-            try:
-                entity.undeclare()
-            except Exception:
-                pass
+        self._entities.close()
 
     def call(self, fn: Callable[[], T], timeout: float = 2.0) -> T:
         """Run ``fn`` on the monitor thread once the pending inputs are drained; its result."""

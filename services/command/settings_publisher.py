@@ -8,6 +8,7 @@ settings as they are now: they are published on every change, and again every
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 
@@ -30,7 +31,8 @@ class SettingsPublisher:
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker, robot: RobotModel,
                  settings: Settings) -> None:
-        self._pub = session.declare_publisher(keys.command_settings)
+        self._entities = contextlib.ExitStack()
+        self._pub = self._entities.enter_context(session.declare_publisher(keys.command_settings))
         self._tracker = tracker
         self._robot = robot
         self._lock = threading.Lock()
@@ -56,7 +58,6 @@ class SettingsPublisher:
         self._at = time.monotonic()
 
     def close(self) -> None:
-        try:
-            self._pub.undeclare()
-        except Exception:
-            pass
+        # Under the lock: a setter's put() on a query worker holds the publisher borrowed.
+        with self._lock:
+            self._entities.close()

@@ -8,6 +8,7 @@ also notices a servo that fell silent, which no message would announce.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 
@@ -39,12 +40,16 @@ class Watcher:
                  pulse: Pulse | None = None) -> None:
         self._tracker = tracker
         self._pulse = pulse or Pulse("the state watcher", 0.5)
-        self._status = session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(_STATUS_RING))
-        self._progress = session.declare_subscriber(keys.planner_progress,
-                                                    zenoh.handlers.FifoChannel(_PROGRESS_FIFO))
-        self._planner = session.liveliness().declare_subscriber(
-            keys.alive(Service.PLANNER), zenoh.handlers.FifoChannel(64), history=True)
-        self._alarms = session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(_ALARMS_FIFO))
+        self._entities = contextlib.ExitStack()
+        enter = self._entities.enter_context
+        self._status = enter(session.declare_subscriber(keys.servo_status,
+                                                        zenoh.handlers.RingChannel(_STATUS_RING)))
+        self._progress = enter(session.declare_subscriber(keys.planner_progress,
+                                                          zenoh.handlers.FifoChannel(_PROGRESS_FIFO)))
+        self._planner = enter(session.liveliness().declare_subscriber(
+            keys.alive(Service.PLANNER), zenoh.handlers.FifoChannel(64), history=True))
+        self._alarms = enter(session.declare_subscriber(keys.monitor_alarms,
+                                                        zenoh.handlers.FifoChannel(_ALARMS_FIFO)))
         self._alarm_copy = AlarmListCopy(session, keys, Service.COMMAND)
         self._stop = threading.Event()
         self._bad = 0  # malformed messages seen (logged once per kind)
@@ -61,11 +66,7 @@ class Watcher:
         self._stop.set()
         self._thread.join(timeout=2.0)
         self._alarm_copy.close()
-        for sub in (self._status, self._progress, self._planner, self._alarms):
-            try:
-                sub.undeclare()
-            except Exception:
-                pass
+        self._entities.close()
 
     def _run(self) -> None:
         while not self._stop.wait(WATCHER_POLL):

@@ -9,6 +9,7 @@ by how fast the timeout came.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import time
@@ -51,7 +52,8 @@ class Asker:
                  target: zenoh.QueryTarget = zenoh.QueryTarget.BEST_MATCHING) -> None:
         self.key = key
         self.timeout = timeout
-        self._querier = session.declare_querier(key, target=target, timeout=timeout)
+        self._entities = contextlib.ExitStack()
+        self._querier = self._entities.enter_context(session.declare_querier(key, target=target, timeout=timeout))
         self._declared = time.monotonic()
 
     def served(self) -> bool:
@@ -97,7 +99,4 @@ class Asker:
         return answers
 
     def close(self) -> None:
-        try:
-            self._querier.undeclare()
-        except zenoh.ZError:
-            pass
+        self._entities.close()

@@ -20,6 +20,7 @@ departure, not a loss (no lost or hung FAULT for a launcher that stops).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
@@ -74,7 +75,8 @@ class Heartbeat:
         self.period = health.heartbeat_period  # [s]
         self._priority = priority
         self._pulses: list[Pulse] = []
-        self._pub = session.declare_publisher(keys.heartbeat(service), express=True)
+        self._entities = contextlib.ExitStack()
+        self._pub = self._entities.enter_context(session.declare_publisher(keys.heartbeat(service), express=True))
         self._stop = threading.Event()
         self._seq = 0
         self._left = False
@@ -105,10 +107,7 @@ class Heartbeat:
 
     def close(self) -> None:
         self._stop_thread()
-        try:
-            self._pub.undeclare()
-        except Exception:
-            pass
+        self._entities.close()  # idempotent: the framework closes a heartbeat twice
 
     def _stop_thread(self) -> None:
         self._stop.set()

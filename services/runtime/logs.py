@@ -7,6 +7,7 @@ call never blocks a Zenoh callback or the servo loop.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import sys
 import threading
@@ -43,14 +44,18 @@ class ZenohLogHandler(logging.Handler):
                  also: tuple[ArmKeys, ...] = ()) -> None:
         super().__init__()
         self._service = service
-        # looked up by a record's arm, None when it names none (then the main publisher)
-        self._by_arm: dict[str | None, zenoh.Publisher] = {
-            k.arm: session.declare_publisher(k.log(service)) for k in also if k.arm != keys.arm}
+        # What close() needs exists before the first declaration: logging.shutdown() at exit
+        # closes a handler whose __init__ failed too.
+        self._entities = contextlib.ExitStack()
         self._pending: collections.deque[logging.LogRecord] = collections.deque(maxlen=_QUEUE_LIMIT)
         self._wake = threading.Event()
         self._closed = False
-        self._publisher = session.declare_publisher(keys.log(service))
         self._thread = threading.Thread(target=self._run, name="log-publisher", daemon=True)
+        # looked up by a record's arm, None when it names none (then the main publisher)
+        self._by_arm: dict[str | None, zenoh.Publisher] = {
+            k.arm: self._entities.enter_context(session.declare_publisher(k.log(service)))
+            for k in also if k.arm != keys.arm}
+        self._publisher = self._entities.enter_context(session.declare_publisher(keys.log(service)))
         self._thread.start()
 
     def emit(self, record: logging.LogRecord) -> None:
@@ -80,10 +85,7 @@ class ZenohLogHandler(logging.Handler):
     def close(self) -> None:
         self._closed = True
         self._wake.set()
-        self._thread.join(timeout=2.0)
-        for publisher in (self._publisher, *self._by_arm.values()):
-            try:
-                publisher.undeclare()
-            except Exception:
-                pass
+        if self._thread.is_alive():  # not started if __init__ failed
+            self._thread.join(timeout=2.0)
+        self._entities.close()
         super().close()

@@ -14,6 +14,7 @@ starting with an empty list while the arm is still stopped by them.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Callable
 
@@ -107,7 +108,9 @@ class AlarmListCopy:
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, service: Service) -> None:
         self._key = keys.alarm_copy(service)
-        self._queryable = session.declare_queryable(self._key, zenoh.handlers.FifoChannel(16))
+        self._entities = contextlib.ExitStack()
+        self._queryable = self._entities.enter_context(
+            session.declare_queryable(self._key, zenoh.handlers.FifoChannel(16)))
 
     def answer(self, current: Callable[[], AlarmList | None]) -> None:
         """Reply ``current()`` to every pending query (None: no list adopted yet, no reply)."""
@@ -121,10 +124,7 @@ class AlarmListCopy:
                 query.drop()
 
     def close(self) -> None:
-        try:
-            self._queryable.undeclare()
-        except Exception:
-            pass
+        self._entities.close()
 
 
 def newest_copy(session: zenoh.Session, keys: ArmKeys, timeout: float = MONITOR_TIMEOUT) -> AlarmList | None:

@@ -9,6 +9,7 @@ of the queries and nothing runs on Zenoh's own threads.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -90,7 +91,9 @@ class QueryServer:
 
     def __init__(self, session: zenoh.Session, key: str, answer: Answer, name: str) -> None:
         self._answer = answer
-        self._queryable = session.declare_queryable(key, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY))
+        self._entities = contextlib.ExitStack()
+        self._queryable = self._entities.enter_context(
+            session.declare_queryable(key, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY)))
         self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
         self._thread.start()
 
@@ -117,10 +120,8 @@ class QueryServer:
     def close(self) -> None:
         """Stop serving. The worker may sit in ``recv()``, which holds the queryable; it
         ends when the session closes, so call :meth:`join` after the session's block."""
-        try:
-            self._queryable.undeclare()
-        except Exception:
-            pass
+        with contextlib.suppress(RuntimeError):  # "Already borrowed": the worker sits in recv()
+            self._entities.close()
         self._thread.join(timeout=0.2)
 
     def join(self, timeout: float = 2.0) -> None:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import contextlib
 import dataclasses
 import logging
 import time
@@ -126,19 +127,21 @@ class ServoLoop:
         self._calls: collections.deque[tuple[Callable[[], Any], concurrent.futures.Future]] = collections.deque()
         self.received = self.underruns = self.dropped = 0
 
-        self._cmd_sub = session.declare_subscriber(keys.pos_cmd, zenoh.handlers.FifoChannel(1 << 16))
-        self._block_sub = session.declare_subscriber(keys.pos_block, zenoh.handlers.FifoChannel(1 << 12))
-        self._estop_sub = session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64))
-        self._alarms_sub = session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256))
+        self._entities = contextlib.ExitStack()
+        enter = self._entities.enter_context
+        self._cmd_sub = enter(session.declare_subscriber(keys.pos_cmd, zenoh.handlers.FifoChannel(1 << 16)))
+        self._block_sub = enter(session.declare_subscriber(keys.pos_block, zenoh.handlers.FifoChannel(1 << 12)))
+        self._estop_sub = enter(session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64)))
+        self._alarms_sub = enter(session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256)))
         self._alarm_copy = AlarmListCopy(session, keys, Service.SERVO)
         self._monitor = MonitorWatch(session, keys, health)  # nobody else can watch the watcher
-        self._report_pub = session.declare_publisher(keys.monitor_report, express=True)
-        self._fb_pub = session.declare_publisher(keys.pos_feedback, express=True)
+        self._report_pub = enter(session.declare_publisher(keys.monitor_report, express=True))
+        self._fb_pub = enter(session.declare_publisher(keys.pos_feedback, express=True))
         # The 1 kHz feedback is encoded only while someone subscribes (none of our services do).
-        self._fb_matching = self._fb_pub.declare_matching_listener(zenoh.handlers.FifoChannel(64))
+        self._fb_matching = enter(self._fb_pub.declare_matching_listener(zenoh.handlers.FifoChannel(64)))
         self._fb_wanted = self._fb_pub.matching_status.matching
-        self._status_pub = session.declare_publisher(keys.servo_status, express=True)
-        self._health_pub = session.declare_publisher(keys.servo_health)
+        self._status_pub = enter(session.declare_publisher(keys.servo_status, express=True))
+        self._health_pub = enter(session.declare_publisher(keys.servo_health))
         self._stats = _Stats()
         self._period_ns = model.cmd_cycle_ms * 1_000_000
         self._tm_ns = 0  # [ns] wall-clock time the newest feedback sample stands for
@@ -150,13 +153,7 @@ class ServoLoop:
         """Undeclare everything; call it once the clock has stopped."""
         self._alarm_copy.close()
         self._monitor.close()
-        for entity in (self._fb_matching, self._cmd_sub, self._block_sub, self._estop_sub,
-                       self._alarms_sub, self._report_pub, self._fb_pub,
-                       self._status_pub, self._health_pub):
-            try:
-                entity.undeclare()
-            except Exception:
-                pass
+        self._entities.close()  # in reverse: the matching listener before its publisher
         self.world.close()
 
     @property

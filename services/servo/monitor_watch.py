@@ -12,6 +12,7 @@ channels; what it finds comes back as a :class:`Finding` for the loop to act on.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 
@@ -41,10 +42,11 @@ class MonitorWatch:
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, health: Health) -> None:
         self.health = health
-        self._token = session.liveliness().declare_subscriber(
-            keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True)
-        self._beats = session.declare_subscriber(keys.heartbeat(Service.ALARM_MONITOR),
-                                                 zenoh.handlers.RingChannel(1))
+        self._entities = contextlib.ExitStack()
+        self._token = self._entities.enter_context(session.liveliness().declare_subscriber(
+            keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True))
+        self._beats = self._entities.enter_context(session.declare_subscriber(
+            keys.heartbeat(Service.ALARM_MONITOR), zenoh.handlers.RingChannel(1)))
         self._watch = ServiceWatch(Service.ALARM_MONITOR, health)
         self._looked_at = time.monotonic()  # [s] the previous look
         self._judge_after = 0.0  # [s] monotonic: the monitor's silence counts from then on
@@ -88,8 +90,4 @@ class MonitorWatch:
         return self._watch.hung(time.monotonic())
 
     def close(self) -> None:
-        for entity in (self._token, self._beats):
-            try:
-                entity.undeclare()
-            except Exception:  # the session closed first
-                pass
+        self._entities.close()
