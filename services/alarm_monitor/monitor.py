@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
-import contextlib
 import logging
 import threading
 import time
@@ -22,23 +21,40 @@ from typing import TypeVar
 import numpy as np
 import zenoh
 
+from jara_arm.kinematics import Kinematics, hg_to_se3
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec, messages
-from jara_arm.schema.alarms import (ALARM_LIST, ALARM_REPORT, HEARTBEAT, AlarmEventKind, AlarmList,
-                                    format_code, make_alarm)
+from jara_arm.schema.alarms import (
+    ALARM_LIST,
+    ALARM_REPORT,
+    HEARTBEAT,
+    AlarmEventKind,
+    AlarmList,
+    format_code,
+    make_alarm,
+)
 from jara_arm.schema.codes import AlarmCode
 from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.keys import ArmKeys, Service, parse_alive, parse_heartbeat
 from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
-from jara_arm.kinematics import Kinematics, hg_to_se3
+from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.timing import MONITOR_POLL, SAME_HOST, Health
 
 from .book import AlarmBook
-from .detectors import (CARTESIAN_LIMIT_TOLERANCE, HUNG_CODE, JOINT_LIMIT_TOLERANCE, LOST_CODE,
-                        OVERLOAD_MARGIN, OVERLOAD_SAMPLES, OVERSPEED_MARGIN, OVERSPEED_SAMPLES, AboveRating,
-                        Crossing)
+from .detectors import (
+    CARTESIAN_LIMIT_TOLERANCE,
+    HUNG_CODE,
+    JOINT_LIMIT_TOLERANCE,
+    LOST_CODE,
+    OVERLOAD_MARGIN,
+    OVERLOAD_SAMPLES,
+    OVERSPEED_MARGIN,
+    OVERSPEED_SAMPLES,
+    AboveRating,
+    Crossing,
+)
 from .reactions import Reactions
 
 log = logging.getLogger(__name__)
@@ -78,7 +94,7 @@ class Monitor:
         self._n = n
         self.watches = {s: ServiceWatch(s, health) for s in (Service.SERVO, Service.PLANNER, Service.COMMAND)}
         ring, fifo = zenoh.handlers.RingChannel, zenoh.handlers.FifoChannel
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         enter = self._entities.enter_context
         self._estop = enter(session.declare_subscriber(keys.estop, fifo(64)))
         self._reports = enter(session.declare_subscriber(keys.monitor_report, fifo(1024)))

@@ -11,9 +11,9 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from jara_arm.kinematics import Kinematics, arm_to_robot, se3_to_hg
 from jara_arm.robots import Family, RobotModel
 from jara_arm.schema.types import CarPosWithElbow, HgMatrix, LimitValue
-from jara_arm.kinematics import Kinematics, arm_to_robot, se3_to_hg
 
 
 def _about_z(r: np.ndarray) -> np.ndarray:

@@ -19,7 +19,6 @@ import threading
 from jara_arm.robots import RobotModel
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.keys import ArmKeys
-
 from jara_arm.services.runtime.monitor_link import MonitorLink
 
 from .links import PlannerLink, ServoLink

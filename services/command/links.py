@@ -21,8 +21,7 @@ from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import COMMON
-from jara_arm.schema.planner import (CONTROL_REQUEST, MOTION_REQUEST, ControlAction, ControlRequest,
-                                     MotionRequest)
+from jara_arm.schema.planner import CONTROL_REQUEST, MOTION_REQUEST, ControlAction, ControlRequest, MotionRequest
 from jara_arm.services.runtime.ask import Answer, Asker
 from jara_arm.services.runtime.timing import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT
 

@@ -19,11 +19,11 @@ from .cartesian import CartesianFeedback, reach
 from .common import CommandCommon
 from .core import Core
 from .feedback import JointFeedback
-from .settings_publisher import SETTINGS_PERIOD, SettingsPublisher
 from .links import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT, PlannerLink, ServoLink
 from .middle import CommandMiddle
 from .queue import DEFAULT_CAPACITY, MotionQueue
 from .settings import Settings
+from .settings_publisher import SETTINGS_PERIOD, SettingsPublisher
 from .state import StateTracker, StateView
 from .watch import Watcher
 

@@ -8,7 +8,6 @@ settings as they are now: they are published on every change, and again every
 
 from __future__ import annotations
 
-import contextlib
 import threading
 import time
 
@@ -18,6 +17,7 @@ from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.planner import MOTION_SETTINGS
+from jara_arm.services.runtime.entities import Entities
 
 from .settings import Settings
 from .state import StateTracker
@@ -31,7 +31,7 @@ class SettingsPublisher:
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker, robot: RobotModel,
                  settings: Settings) -> None:
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         self._pub = self._entities.enter_context(session.declare_publisher(keys.command_settings))
         self._tracker = tracker
         self._robot = robot

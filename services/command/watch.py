@@ -8,7 +8,6 @@ also notices a servo that fell silent, which no message would announce.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import threading
 
@@ -19,7 +18,7 @@ from jara_arm.schema.alarms import ALARM_LIST
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.planner import PLANNER_PROGRESS
-
+from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.monitor_link import AlarmListCopy
 from jara_arm.services.runtime.timing import WATCHER_POLL
@@ -40,7 +39,7 @@ class Watcher:
                  pulse: Pulse | None = None) -> None:
         self._tracker = tracker
         self._pulse = pulse or Pulse("the state watcher", 0.5)
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         enter = self._entities.enter_context
         self._status = enter(session.declare_subscriber(keys.servo_status,
                                                         zenoh.handlers.RingChannel(_STATUS_RING)))

@@ -9,7 +9,6 @@ by how fast the timeout came.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 import time
@@ -19,6 +18,8 @@ import zenoh
 
 from jara_arm.schema import codec
 from jara_arm.schema.codec import Encoding
+
+from .entities import Entities
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +53,7 @@ class Asker:
                  target: zenoh.QueryTarget = zenoh.QueryTarget.BEST_MATCHING) -> None:
         self.key = key
         self.timeout = timeout
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         self._querier = self._entities.enter_context(session.declare_querier(key, target=target, timeout=timeout))
         self._declared = time.monotonic()
 

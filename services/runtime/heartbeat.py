@@ -20,7 +20,6 @@ departure, not a loss (no lost or hung FAULT for a launcher that stops).
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 import math
@@ -29,12 +28,12 @@ import time
 
 import zenoh
 
-from jara_arm.schema import codec
-from jara_arm.schema import alarms
+from jara_arm.schema import alarms, codec
 from jara_arm.schema.alarms import HEARTBEAT
 from jara_arm.schema.codes import ULONG_MAX
 from jara_arm.schema.keys import ArmKeys, Service
 
+from .entities import Entities
 from .realtime import realtime_thread
 from .timing import SAME_HOST, Health
 
@@ -75,7 +74,7 @@ class Heartbeat:
         self.period = health.heartbeat_period  # [s]
         self._priority = priority
         self._pulses: list[Pulse] = []
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         self._pub = self._entities.enter_context(session.declare_publisher(keys.heartbeat(service), express=True))
         self._stop = threading.Event()
         self._seq = 0

@@ -7,7 +7,6 @@ call never blocks a Zenoh callback or the servo loop.
 from __future__ import annotations
 
 import collections
-import contextlib
 import logging
 import sys
 import threading
@@ -16,6 +15,8 @@ import zenoh
 
 from jara_arm.schema import codec, messages
 from jara_arm.schema.keys import ArmKeys, Service
+
+from .entities import Entities
 
 FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
 _QUEUE_LIMIT = 10_000  # records kept while Zenoh is slow; the oldest are dropped
@@ -46,7 +47,7 @@ class ZenohLogHandler(logging.Handler):
         self._service = service
         # What close() needs exists before the first declaration: logging.shutdown() at exit
         # closes a handler whose __init__ failed too.
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         self._pending: collections.deque[logging.LogRecord] = collections.deque(maxlen=_QUEUE_LIMIT)
         self._wake = threading.Event()
         self._closed = False

@@ -14,7 +14,6 @@ starting with an empty list while the arm is still stopped by them.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from collections.abc import Callable
 
@@ -29,6 +28,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm
 
 from .ask import Answer, Asker, Silence
+from .entities import Entities
 from .rpc import ok, refuse
 from .timing import MONITOR_TIMEOUT
 
@@ -108,7 +108,7 @@ class AlarmListCopy:
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, service: Service) -> None:
         self._key = keys.alarm_copy(service)
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         self._queryable = self._entities.enter_context(
             session.declare_queryable(self._key, zenoh.handlers.FifoChannel(16)))
 

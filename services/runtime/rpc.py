@@ -9,7 +9,6 @@ of the queries and nothing runs on Zenoh's own threads.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import threading
 import time
@@ -25,6 +24,7 @@ from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import op_of
 from jara_arm.schema.operations import Operation
 
+from .entities import Entities
 from .timing import DEADLINE_GRACE
 
 log = logging.getLogger(__name__)
@@ -91,7 +91,7 @@ class QueryServer:
 
     def __init__(self, session: zenoh.Session, key: str, answer: Answer, name: str) -> None:
         self._answer = answer
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         self._queryable = self._entities.enter_context(
             session.declare_queryable(key, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY)))
         self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
@@ -120,8 +120,7 @@ class QueryServer:
     def close(self) -> None:
         """Stop serving. The worker may sit in ``recv()``, which holds the queryable; it
         ends when the session closes, so call :meth:`join` after the session's block."""
-        with contextlib.suppress(RuntimeError):  # "Already borrowed": the worker sits in recv()
-            self._entities.close()
+        self._entities.close()  # the queryable may stay held by recv(): Entities logs it
         self._thread.join(timeout=0.2)
 
     def join(self, timeout: float = 2.0) -> None:

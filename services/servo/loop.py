@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
-import contextlib
 import dataclasses
 import logging
 import time
@@ -45,10 +44,17 @@ from jara_arm.schema.codes import AlarmCode, AlarmType, StateBit
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
-from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
+from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
-from jara_arm.services.runtime.timing import (HEALTH_EVERY, SAME_HOST, STATUS_EVERY,
-                                              STATUS_EVERY_AT_REST, UNDERRUN_GRACE, Health)
+from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
+from jara_arm.services.runtime.timing import (
+    HEALTH_EVERY,
+    SAME_HOST,
+    STATUS_EVERY,
+    STATUS_EVERY_AT_REST,
+    UNDERRUN_GRACE,
+    Health,
+)
 
 from .control import RAN_DRY, REST_SPEED, STOPPED, ControlLaw, Refusal
 from .monitor_watch import MonitorWatch
@@ -127,7 +133,7 @@ class ServoLoop:
         self._calls: collections.deque[tuple[Callable[[], Any], concurrent.futures.Future]] = collections.deque()
         self.received = self.underruns = self.dropped = 0
 
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         enter = self._entities.enter_context
         self._cmd_sub = enter(session.declare_subscriber(keys.pos_cmd, zenoh.handlers.FifoChannel(1 << 16)))
         self._block_sub = enter(session.declare_subscriber(keys.pos_block, zenoh.handlers.FifoChannel(1 << 12)))

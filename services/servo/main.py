@@ -9,11 +9,10 @@ import argparse
 import logging
 from collections.abc import Sequence
 
-
 from jara_arm.robots import DEFAULT_ROBOT, Obstacle, RobotModel, RobotModelError
 from jara_arm.robots import robot as robot_model
-from jara_arm.schema.codec import Reply
 from jara_arm.schema.alarms import format_code
+from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.keys import ArmKeys, Service, check_arm

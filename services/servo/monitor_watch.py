@@ -12,7 +12,6 @@ channels; what it finds comes back as a :class:`Finding` for the loop to act on.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import time
 
@@ -23,6 +22,7 @@ from jara_arm.schema.alarms import HEARTBEAT
 from jara_arm.schema.codes import AlarmCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import ServiceWatch
 from jara_arm.services.runtime.timing import Health
 
@@ -42,7 +42,7 @@ class MonitorWatch:
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, health: Health) -> None:
         self.health = health
-        self._entities = contextlib.ExitStack()
+        self._entities = Entities()
         self._token = self._entities.enter_context(session.liveliness().declare_subscriber(
             keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True))
         self._beats = self._entities.enter_context(session.declare_subscriber(

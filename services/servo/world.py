@@ -5,11 +5,11 @@ PyBullet is not thread-safe: only the servo loop thread touches a ``World``.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import pybullet
 import pybullet_data
-
-from collections.abc import Sequence
 
 from jara_arm.robots import Obstacle, RobotModel
 
