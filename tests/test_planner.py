@@ -44,7 +44,7 @@ from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 from jara_arm.services.planner.servo_fifo import FifoEstimate
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import Client, Proc, car, endpoint, free_port, pose, service_argv, wait_alive, wait_until
+from .support import Client, Proc, ServoTime, car, endpoint, free_port, pose, service_argv, wait_alive, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 DT = 1e-3
@@ -187,13 +187,6 @@ class Rig:
         d = b - a
         self.wait_status(f"the control point {fraction:.0%} of the way",
                          lambda st: (self.tcp(st.target)[:3, 3] - a) @ d / (d @ d) >= fraction, timeout)
-
-    def servo_time_passes(self, seconds: float) -> None:
-        """Until the servo stamps a status ``seconds`` [s] after now (at rest, its cycle's wall-clock
-        deadline; a cycle never runs early): a window of the servo's own time."""
-        end = time.time() + seconds
-        self.wait_status(f"the servo's clock {seconds:g} s on", lambda st: st.tm.to_seconds() >= end,
-                         seconds + 5.0)
 
     def wait_planner_sees_servo_on(self, timeout: float = 20.0) -> None:
         """Until the planner plans from a servo status that says servo on.
@@ -445,7 +438,7 @@ class TestIiwa:
         held = rig.tcp(rig.pos())[:3, 3]
         assert 0.02 < np.linalg.norm(held - a) < np.linalg.norm(b - a) - 0.02  # stopped mid-way
         assert rig.control(ControlAction.PAUSE)["comment"].startswith("OK: ignored")
-        rig.servo_time_passes(HOLD_WINDOW)  # paused: nothing may move the arm in this window
+        ServoTime(rig.session, rig.keys).passes(HOLD_WINDOW)  # paused: nothing may move the arm in this window
         assert np.linalg.norm(rig.tcp(rig.pos())[:3, 3] - held) < 1e-5  # holds
         rec = rig.drain()
         # The deceleration reached the servo within 20 ms of the reply: the first command sent

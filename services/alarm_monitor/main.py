@@ -53,7 +53,7 @@ class AlarmMonitorService(ArmService):
         monitor.start()
         ctx.closing(monitor.stop)
         ctx.watch("the alarm monitor thread", lambda: monitor.alive)
-        ctx.serve(ctx.keys, ctx.keys.monitor_common(), MONITOR_OPERATIONS, MonitorCommon(monitor), "monitor-rpc")
+        ctx.serve(ctx.keys.monitor_common(), MONITOR_OPERATIONS, MonitorCommon(monitor), "monitor-rpc")
         # Every thread of the process (Zenoh's that bring the samples in, too) at the monitor's
         # priority: an alarm must not wait for the planner's or anyone's normal-priority work.
         realtime_process(ctx.realtime_priority, "alarm monitor")

@@ -80,8 +80,8 @@ class CommandService(ArmService):
         ctx.closing(settings_pub.close)
         settings_pub.republish()
         ctx.every(SETTINGS_PERIOD, settings_pub.republish)
-        ctx.serve(keys, keys.interface(Interface.COMMON), COMMON, CommandCommon(core, feedback), "command-common")
-        ctx.serve(keys, keys.interface(Interface.MIDDLE), MIDDLE,
+        ctx.serve(keys.interface(Interface.COMMON), COMMON, CommandCommon(core, feedback), "command-common")
+        ctx.serve(keys.interface(Interface.MIDDLE), MIDDLE,
                   CommandMiddle(core, settings, feedback, cartesian, settings_pub.changed), "command-middle")
         alarms = core.monitor.alarm_list()  # a restarted command knows the active alarms at once
         if alarms is not None:

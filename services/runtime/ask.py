@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import zenoh
@@ -69,16 +70,21 @@ class Asker:
         """Nobody serves the key, and the querier is old enough to know it."""
         return time.monotonic() - self._declared > MATCHING_SETTLE and not self.served()
 
+    def _answers(self, payload: bytes) -> Iterator[Answer]:
+        """The good replies as they come (an error reply is logged); raises ``zenoh.ZError``."""
+        for reply in self._querier.get(payload=payload, attachment=codec.deadline_attachment(self.timeout)):
+            if reply.ok is None:
+                log.warning("%s answered with an error: %s", self.key, reply.err)
+                continue
+            yield Answer(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), Encoding.of(reply.ok.encoding))
+
     def ask(self, payload: bytes = b"") -> Answer | Silence:
         """The first good reply to ``payload``, or why there is none."""
         if self._nobody():
             return Silence(f"nobody serves {self.key}: is the service running?", nobody=True)
         try:
-            for reply in self._querier.get(payload=payload, attachment=codec.deadline_attachment(self.timeout)):
-                if reply.ok is not None:
-                    return Answer(str(reply.ok.key_expr), reply.ok.payload.to_bytes(),
-                                  Encoding.of(reply.ok.encoding))
-                log.warning("%s answered with an error: %s", self.key, reply.err)
+            for answer in self._answers(payload):
+                return answer
         except zenoh.ZError as exc:
             return Silence(f"the query on {self.key} failed: {exc}")
         if not self.served():
@@ -89,12 +95,9 @@ class Asker:
         """Every good reply (for a key served by several services) within the timeout."""
         if self._nobody():
             return []
-        answers = []
+        answers: list[Answer] = []
         try:
-            for reply in self._querier.get(payload=payload, attachment=codec.deadline_attachment(self.timeout)):
-                if reply.ok is not None:
-                    answers.append(Answer(str(reply.ok.key_expr), reply.ok.payload.to_bytes(),
-                                          Encoding.of(reply.ok.encoding)))
+            answers.extend(self._answers(payload))
         except zenoh.ZError as exc:
             log.warning("the query on %s failed: %s", self.key, exc)
         return answers

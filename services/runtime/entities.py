@@ -12,19 +12,11 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from typing import TypeVar
 
 log = logging.getLogger(__name__)
 
-E = TypeVar("E")
-
-
 class Entities(contextlib.ExitStack):
-    """``own(session.declare_publisher(...))`` at declaration, :meth:`close` at the end."""
-
-    def own(self, entity: contextlib.AbstractContextManager[E]) -> E:
-        """Declare-side: keep ``entity`` until :meth:`close`, and return it."""
-        return self.enter_context(entity)
+    """``enter_context(session.declare_publisher(...))`` at declaration, :meth:`close` at the end."""
 
     def close(self) -> None:
         """Undeclare every entity (an ``ExitStack`` goes on past a failing one); log, not raise."""

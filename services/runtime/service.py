@@ -29,6 +29,7 @@ process with exit code 1, and the launcher restarts it.
 
 from __future__ import annotations
 
+import abc
 import argparse
 import contextlib
 import gc
@@ -109,7 +110,7 @@ class ServiceContext:
         """The heartbeat of ``arm`` (default: the main one), e.g. for a :meth:`Heartbeat.pulse`."""
         return self.heartbeats[arm or self.keys.arm]
 
-    def serve(self, keys: ArmKeys, key_all: str, table: Mapping[str, Operation], handler: object,
+    def serve(self, key_all: str, table: Mapping[str, Operation], handler: object,
               name: str) -> InterfaceServer:
         """Answer an IDL interface (``key_all`` = ``.../<Interface>/*``) with ``handler``'s methods."""
         server = InterfaceServer(self.session, key_all, table, handler, name)
@@ -168,7 +169,7 @@ class ServiceContext:
                 job()
 
 
-class ArmService:
+class ArmService(abc.ABC):
     """One service: a subclass names it and declares its parts in :meth:`start`."""
 
     #: Which service this is (its key chunk and ``jara-arm service`` name).
@@ -197,9 +198,9 @@ class ArmService:
         """Every arm this process serves, ``arm`` first (the servo process may serve several)."""
         return [(arm, model)]
 
+    @abc.abstractmethod
     def start(self, ctx: ServiceContext) -> None:
         """Declare the service's parts on ``ctx``; an exception fails the start."""
-        raise NotImplementedError
 
     def before_session(self, model: RobotModel, options: argparse.Namespace) -> None:
         """Before the session opens: start child processes here (spawned, never forked after a

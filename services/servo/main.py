@@ -148,7 +148,7 @@ class ServoService(ArmService):
         for loop in loops:
             keys = ArmKeys(loop.arm)
             common = ServoCommon(loop, MonitorLink(ctx.session, keys))
-            ctx.serve(keys, keys.servo_common(), COMMON, common, f"servo-rpc-{keys.arm}")
+            ctx.serve(keys.servo_common(), COMMON, common, f"servo-rpc-{keys.arm}")
             if common.refresh():  # a restarted servo knows the active alarms before it says it is up
                 log.info("active alarms from the alarm monitor: %s",
                          ", ".join(format_code(a.code) for a in loop.monitor_alarms) or "none",
