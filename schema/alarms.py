@@ -110,6 +110,14 @@ class AlarmList:
     alarms: tuple[Alarm, ...] = wire(w.ALARM_SEQ, doc="oldest first")
 
 
+def is_newer(candidate: AlarmList, current: AlarmList | None) -> bool:
+    """Whether ``candidate`` replaces ``current``: a later monitor start, or a later list of it."""
+    if current is None:
+        return True
+    return ((candidate.started.to_seconds(), candidate.tm.to_seconds())
+            >= (current.started.to_seconds(), current.tm.to_seconds()))
+
+
 @dataclasses.dataclass(frozen=True)
 class Heartbeat:
     """``heartbeat/<service>``: the service's process runs; which of its working loops are stuck."""

@@ -184,11 +184,12 @@ class ArmKeys:
         """``AlarmReport`` from any service to the alarm monitor: raised, or its cause gone."""
         return f"{self.root}/Monitor/report"
 
-    @_key('queryable (internal)', 'servo, command', 'the newest `AlarmList` each adopted: what a restarted monitor takes over')
-    def alarm_copy(self, service: Service | None = None) -> str:
-        """Queryable of the servo and the command service: the newest ``AlarmList`` it adopted,
-        for an alarm monitor that restarts; ``None`` gives ``/*``."""
-        return f"{self.root}/Monitor/copy/{service or '*'}"
+    @property
+    @_key('queryable (internal)', 'servo', 'the `AlarmList` the servo holds: what a restarted monitor takes over')
+    def alarm_copy(self) -> str:
+        """Queryable of the servo: the monitor's newest ``AlarmList`` as the servo holds it (less
+        what it cleared without a monitor), for an alarm monitor that restarts."""
+        return f"{self.root}/Monitor/copy"
 
     @property
     @_key('publisher (internal)', 'command', '`MotionSettings` on change and at 4 Hz')

@@ -1,15 +1,21 @@
 """The internal contract between the command service and the planner service.
 
-The command service owns the state machine, the settings and the motion queue:
-it checks state (servo on, alarms, speed ratio, queue capacity) and hands each
+The command service owns the state machine and the settings: it checks state
+(servo on, alarms, speed ratio, queue capacity) and hands each
 accepted-by-state motion to the planner with a snapshot of the settings. The
-planner checks geometry (limits, reachability, speed, arcs), plans it from the
-end of the previous queued motion, queues it, and streams it to the servo in
-order. Everything here lives under ``JARA_ARM/<arm>/Planner/``.
+planner owns the motion queue and the pause: it gives each motion its id,
+checks geometry (limits, reachability, speed, arcs), plans it from the end of
+the previous queued motion, queues it, and streams it to the servo in order.
+Everything here lives under ``JARA_ARM/<arm>/Planner/``.
 
 * ``Planner/plan`` (queryable): ``MotionRequest`` -> ``PlanReply``.
-* ``Planner/control`` (queryable): ``ControlRequest`` -> ``{id, comment}``.
+* ``Planner/control`` (queryable): ``ControlRequest`` -> ``ControlReply``.
 * ``Planner/progress`` (publisher, on every change and at 10 Hz): ``PlannerProgress``.
+
+Every reply carries the ``PlannerProgress`` the call left behind, and every
+progress message is numbered (``started``, ``seq``): a reader keeps the newest
+one it received by either way (:func:`is_newer`), and needs no other rule for
+a publication that arrives after a reply it already saw.
 """
 
 from __future__ import annotations
@@ -65,20 +71,9 @@ MOTION_SETTINGS = struct(MotionSettings, doc="Internal: the settings a motion wa
 class MotionRequest:
     """One motion: ``op`` is the IDL operation name, ``args`` its decoded ``in`` parameters."""
 
-    motion: int = wire(w.ULONG)  # id given by the command service, increasing
     op: str = wire(w.STRING)
     args: dict[str, Any] = wire(_ArgsType())  # wire form (maps, lists), already checked by the codec
     settings: MotionSettings = wire(MOTION_SETTINGS)
-
-
-@dataclasses.dataclass(frozen=True)
-class PlanReply:
-    """``id``/``comment`` as RETURN_ID (a refusal is passed to the client as is)."""
-
-    id: int = wire(w.LONG)
-    comment: str = wire(w.STRING)
-    endJoints: JointPos = wire(w.JOINT_POS, "rad or m")  # where this motion ends (arm axes + gripper)
-    duration: float = wire(w.DOUBLE, "s")
 
 
 class ControlAction(enum.StrEnum):
@@ -104,12 +99,46 @@ class PlannerProgress:
     lastDiscarded: int = wire(w.ULONG)  # highest id discarded by stop/abort/a servo fault, 0 when none
     paused: bool = wire(w.BOOLEAN)
     streaming: bool = wire(w.BOOLEAN)  # position commands are being sent
+    started: Time = wire(w.TIME)  # when this planner process started: a restarted planner is newer
+    seq: int = wire(w.ULONG)  # grows with every change of the members above but ``tm``
+
+
+PLANNER_PROGRESS = struct(PlannerProgress, strict=False, doc="Internal: planner -> everyone, Planner/progress.")
+
+
+def is_newer(candidate: PlannerProgress, current: PlannerProgress | None) -> bool:
+    """Whether ``candidate`` tells a later state than ``current`` (of a later planner, or later in it)."""
+    if current is None:
+        return True
+    return ((candidate.started.to_seconds(), candidate.seq)
+            > (current.started.to_seconds(), current.seq))
+
+
+@dataclasses.dataclass(frozen=True)
+class PlanReply:
+    """``id``/``comment`` as RETURN_ID (a refusal is passed to the client as is)."""
+
+    id: int = wire(w.LONG)
+    comment: str = wire(w.STRING)
+    motion: int = wire(w.ULONG)  # the id the planner gave the motion, 0 when refused
+    endJoints: JointPos = wire(w.JOINT_POS, "rad or m")  # where this motion ends (arm axes + gripper)
+    duration: float = wire(w.DOUBLE, "s")
+    progress: PlannerProgress = wire(PLANNER_PROGRESS)  # the queue as this call left it
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlReply:
+    """``id``/``comment`` as RETURN_ID, and the queue and pause as the call left them."""
+
+    id: int = wire(w.LONG)
+    comment: str = wire(w.STRING)
+    progress: PlannerProgress = wire(PLANNER_PROGRESS)
 
 
 MOTION_REQUEST = struct(MotionRequest, doc="Internal: command -> planner, Planner/plan.")
 PLAN_REPLY = struct(PlanReply, strict=False, doc="Internal: planner -> command, reply to Planner/plan.")
 CONTROL_REQUEST = struct(ControlRequest, doc="Internal: command -> planner, Planner/control.")
-PLANNER_PROGRESS = struct(PlannerProgress, strict=False, doc="Internal: planner -> everyone, Planner/progress.")
+CONTROL_REPLY = struct(ControlReply, strict=False, doc="Internal: planner -> command, reply to Planner/control.")
 
 MESSAGES: tuple[StructType[Any], ...] = (MOTION_SETTINGS, MOTION_REQUEST, PLAN_REPLY, CONTROL_REQUEST,
-                                    PLANNER_PROGRESS)
+                                         CONTROL_REPLY, PLANNER_PROGRESS)

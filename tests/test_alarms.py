@@ -865,7 +865,7 @@ def test_timing_profiles_and_their_arguments():
 
 def test_newer_alarm_lists():
     from jara_arm.schema.alarms import AlarmList
-    from jara_arm.services.runtime.monitor_link import is_newer
+    from jara_arm.schema.alarms import is_newer
 
     a = AlarmList(Time(100, 0), Time(50, 0), ())
     later = AlarmList(Time(100, 1), Time(50, 0), ())

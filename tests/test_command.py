@@ -5,8 +5,8 @@ Two rigs share one in-process Zenoh router, each started once for the module:
 * ``arm0``: servo + command + planner;
 * ``fake``: a command process whose servo and planner are played by this test
   (``FakePeers``), to see exactly what the command sends the planner (the
-  settings snapshot of every motion) and how it keeps its queue and state from
-  the planner's progress.
+  settings snapshot of every motion) and how it reads the planner's queue and
+  pause from its progress and its replies.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import msgpack
@@ -32,8 +32,18 @@ from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys, Service, op_of
 from jara_arm.schema.operations import ALL, COMMON, MIDDLE, OP, Interface
-from jara_arm.schema.planner import (CONTROL_REQUEST, MOTION_REQUEST, PLAN_REPLY, PLANNER_PROGRESS,
-                                     MotionRequest, PlannerProgress, PlanReply)
+from jara_arm.schema.planner import (
+    CONTROL_REPLY,
+    CONTROL_REQUEST,
+    MOTION_REQUEST,
+    PLAN_REPLY,
+    PLANNER_PROGRESS,
+    ControlAction,
+    ControlReply,
+    MotionRequest,
+    PlannerProgress,
+    PlanReply,
+)
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue, Time, TimedJointPos, hg_matrix
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
@@ -46,10 +56,6 @@ N = IIWA.axis_num
 OK, NG = ReturnCode.OK, ReturnCode.NG
 VALUE_ERR, STATUS_ERR = ReturnCode.VALUE_ERR, ReturnCode.STATUS_ERR
 FAKE_PLAN_TIMEOUT = 0.5  # [s] --plan-timeout of the fake rig's command
-#: Turns of the command's state watcher (``Rig.watcher_turns``) in which nothing may be
-#: published when nothing changed: an observation window counted in the turns of the thread
-#: that would publish (it turns every 10 ms), not in wall-clock time.
-QUIET_TURNS = 20
 
 
 def service_argv(service: Service, port: int, arm: str, *extra: str) -> list[str]:
@@ -77,6 +83,13 @@ class FakePeers:
         self.plan_reply: tuple[int, str] = (OK, "OK")
         self.held: list[zenoh.Query] = []  # plan queries left unanswered (planner "hangs")
         self.hang = False
+        # The queue this fake planner owns (motion ids), as schema/planner.py has it.
+        self._lock = threading.Lock()
+        self.started = Time.now()
+        self.seq = 0
+        self.last_id = 0
+        self.queued: tuple[int, ...] = ()
+        self.paused = False
         self._status = session.declare_publisher(self.keys.servo_status)
         self._progress = session.declare_publisher(self.keys.planner_progress)
         self._servo_q = session.declare_queryable(self.keys.servo_common(), self._servo_common)
@@ -121,17 +134,45 @@ class FakePeers:
             return
         self.plans.append(req)
         code, comment = self.plan_reply
-        body = PlanReply(code, comment, IIWA.ready_pose, 1.0)
+        with self._lock:
+            motion = 0
+            if code == OK:
+                self.last_id = motion = self.last_id + 1
+                self.queued += (motion,)
+            body = PlanReply(code, comment, motion, IIWA.ready_pose, 1.0, self._snapshot(changed=code == OK))
         query.reply(query.key_expr, codec.encode_message(PLAN_REPLY, body))
 
     def _control(self, query: zenoh.Query) -> None:
-        self.controls.append(codec.decode_message(CONTROL_REQUEST, query.payload.to_bytes()).action)
-        query.reply(query.key_expr, codec.dumps({"id": 0, "comment": "OK"}))
+        action = ControlAction(codec.decode_message(CONTROL_REQUEST, query.payload.to_bytes()).action)
+        self.controls.append(action.value)
+        with self._lock:
+            if action in (ControlAction.STOP, ControlAction.ABORT):
+                self.queued, self.paused = (), False
+            else:
+                self.paused = action is ControlAction.PAUSE
+            body = ControlReply(OK, "OK", self._snapshot())
+        query.reply(query.key_expr, codec.encode_message(CONTROL_REPLY, body))
 
-    def progress(self, running: int = 0, queued: tuple[int, ...] = (), last_done: int = 0,
-                 last_discarded: int = 0, paused: bool = False) -> None:
-        msg = PlannerProgress(Time.now(), running, queued, last_done, last_discarded, paused, bool(running))
+    def _snapshot(self, changed: bool = True) -> PlannerProgress:
+        """The queue as it is now (lock held); a new number if it changed."""
+        self.seq += changed
+        return PlannerProgress(Time.now(), self.queued[0] if self.queued else 0, self.queued, 0, 0,
+                               self.paused, bool(self.queued), self.started, self.seq)
+
+    def progress(self, queued: tuple[int, ...] | None = None, paused: bool | None = None,
+                 seq: int | None = None) -> PlannerProgress:
+        """Publish the queue (changed to ``queued``/``paused`` if given), numbered ``seq`` if
+        given (an older number: a message that was on its way), else the next number."""
+        with self._lock:
+            if seq is None:
+                self.queued = self.queued if queued is None else tuple(queued)
+                self.paused = self.paused if paused is None else paused
+                msg = self._snapshot()
+            else:
+                msg = dataclasses.replace(self._snapshot(changed=False), seq=seq,
+                                          queued=tuple(queued or ()), paused=bool(paused))
         self._progress.put(codec.encode_message(PLANNER_PROGRESS, msg))
+        return msg
 
 
 # ---------------------------------------------------------------------------- rigs
@@ -156,25 +197,6 @@ class Rig:
         reply = self.client.call(interface, name, args)
         assert reply.id == OK, (name, reply)
         return reply
-
-    def watcher_turns(self, turns: int = 2, timeout: float = 5.0) -> None:
-        """Until the command's state watcher has taken up what this session published so far.
-
-        The watcher answers ``Monitor/copy/command`` queries itself, in each of its turns
-        before it takes up the Planner/progress and Servo/status that arrived
-        (``services/command/watch.py``, ``Watcher.drain``), and a query travels on the same
-        link as, and behind, whatever this session published before it. The first answer
-        comes from a turn that takes up all of that right after answering; the next one
-        from a later turn (unless the watcher stalled for a whole round trip between two
-        queries of one turn). Without an adopted alarm list (no alarm monitor here) the
-        watcher drops the query unanswered, which ends it all the same.
-        """
-        key = self.keys.alarm_copy(Service.COMMAND)
-        for _ in range(turns):
-            start = time.monotonic()
-            list(self.session.get(key, timeout=timeout))
-            if time.monotonic() - start >= timeout:
-                raise AssertionError(f"the command's state watcher did not take up {key} within {timeout} s")
 
 
 class Rigs:
@@ -268,7 +290,7 @@ def fake(rigs: Rigs) -> Iterator[tuple[Rig, FakePeers]]:
     peers.plan_reply = (OK, "OK")
     peers.alarm = peers.moving = False
     reset(rigs.fake)
-    peers.progress(last_discarded=0)
+    peers.progress(queued=(), paused=False)
     peers.plans.clear()
     peers.controls.clear()
     yield rigs.fake, peers
@@ -522,8 +544,6 @@ def test_state_is_published_on_every_change(real: Rig):
         decoded = codec.decode_message(messages.STATE_MESSAGE, codec.dumps(seen[-1]))
         assert decoded.state == StateBit.SERVO_ON
         assert seen[-1]["queueLength"] == 0 and seen[-1]["queueCapacity"] == 32
-        real.watcher_turns(QUIET_TURNS)  # what it published in them has arrived by the last answer
-        assert states() == []  # nothing changed: nothing published
     finally:
         sub.undeclare()
         beats.undeclare()
@@ -597,7 +617,6 @@ def test_bad_payloads_get_value_err_and_the_service_keeps_running(rigs: Rigs, op
 
 def test_every_motion_carries_the_settings_accepted_before_it(fake):
     rig, peers = fake
-    c = rig.client
     b = hg_matrix(rot("z", 0.5), (0.1, 0.2, 0.3))
     tool = hg_matrix(translation=(0.0, 0.0, 0.1))
     for name, args in ((OP.setSpeedJoint, {"spdRatio": 40}), (OP.setSpeedCartesian, {"spdRatio": 60}),
@@ -615,7 +634,6 @@ def test_every_motion_carries_the_settings_accepted_before_it(fake):
     rig.ok(Interface.MIDDLE, OP.moveCircularCartesianAbs, {"carPointR": car, "carPointT": car})
     first, second = peers.plans
     assert (first.op, second.op) == (OP.movePTPJointAbs, OP.moveCircularCartesianAbs)
-    assert 0 < first.motion < second.motion
     assert first.args == {"jointPoints": [0.2] * N}
     assert codec.decode_request(MIDDLE[OP.moveCircularCartesianAbs], msgpack.packb(second.args)) == {
         "carPointR": car, "carPointT": car}
@@ -642,67 +660,96 @@ def test_planner_refusal_is_passed_on_and_queues_nothing(fake):
     assert rig.state() == StateBit.SERVO_ON
 
 
-def test_queue_full_bookkeeping_from_progress(fake):
+class StateLog:
+    """The ``state`` publications of a rig's command, in order, from now on."""
+
+    def __init__(self, rig: Rig) -> None:
+        self._sub = rig.session.declare_subscriber(rig.keys.state, zenoh.handlers.FifoChannel(1024))
+        self.seen: list[dict] = []
+
+    def until(self, done: Callable[[dict], bool], what: str, timeout: float = 2.0) -> list[dict]:
+        """Everything published up to the first message for which ``done`` holds."""
+        start = len(self.seen)
+
+        def arrived() -> bool:
+            while (sample := self._sub.try_recv()) is not None:
+                self.seen.append(codec.loads(sample.payload.to_bytes()))
+                if done(self.seen[-1]):
+                    return True
+            return False
+
+        wait_until(arrived, timeout, what=f"{what}; published: {self.seen[start:]}")
+        return self.seen[start:]
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def test_queue_full_from_the_planners_queue(fake):
     rig, peers = fake
     c = rig.client
     rig.ok(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 50})
     move = {"jointPoints": (0.0,) * N}
     for _ in range(32):
         rig.ok(Interface.MIDDLE, OP.movePTPJointRel, move)
+    # The replies carried the queue: full at once, no publication needed.
     r = c.middle(OP.movePTPJointRel, move)
-    assert r.id == ReturnCode.FULL_MOTION_QUEUE_ERR, r
+    assert r.id == ReturnCode.FULL_MOTION_QUEUE_ERR and "32 of 32" in r.comment, r
     assert rig.state() == StateBit.SERVO_ON | StateBit.MOVING | StateBit.BUFFER_FULL
     assert len(peers.plans) == 32  # the 33rd never reached the planner
-    ids = [p.motion for p in peers.plans]
-    # A progress message older than the last acceptance drops nothing it does not prove finished.
-    peers.progress(running=ids[0], queued=tuple(ids[:10]))
-    rig.watcher_turns()  # the command has taken it up
-    assert c.middle(OP.movePTPJointRel, move).id == ReturnCode.FULL_MOTION_QUEUE_ERR
-    peers.progress(running=ids[3], queued=tuple(ids[3:]), last_done=ids[2])  # three motions done
-    wait_until(lambda: not rig.state() & StateBit.BUFFER_FULL, 2, what="queue no longer full")
-    for _ in range(3):
-        rig.ok(Interface.MIDDLE, OP.movePTPJointRel, move)
-    assert c.middle(OP.movePTPJointRel, move).id == ReturnCode.FULL_MOTION_QUEUE_ERR
-    # setSoftLimitJoint is refused while motions are queued.
-    r = c.common(OP.setSoftLimitJoint, {"softLimit": IIWA.hard_limits})
-    assert r.id == STATUS_ERR and "queued" in r.comment, r
-    # stop: forwarded, queue discarded, a stale progress message cannot bring it back.
-    rig.ok(Interface.MIDDLE, OP.stop)
-    assert peers.controls[-1] == "stop"
-    assert rig.state() == StateBit.SERVO_ON
-    peers.progress(running=ids[3], queued=tuple(ids[3:]), last_done=ids[2])
-    rig.watcher_turns()  # the command has taken it up
-    assert rig.state() == StateBit.SERVO_ON
+    ids = peers.queued
+    assert ids == tuple(range(ids[0], ids[0] + 32))
+    states = StateLog(rig)
+    try:
+        # A message numbered before the last reply (on its way meanwhile) changes nothing; the
+        # next one does. Both on one key from one publisher: they are taken up in this order.
+        stale = peers.progress(queued=ids[:10], seq=peers.seq - 1)
+        assert len(stale.queued) == 10
+        peers.progress(queued=ids[3:])  # three motions done
+        published = states.until(lambda m: m["queueLength"] == 29, "three motions done")
+        assert [m["queueLength"] for m in published] == [29], published
+        assert published[-1]["state"] == StateBit.SERVO_ON | StateBit.MOVING
+        for _ in range(3):
+            rig.ok(Interface.MIDDLE, OP.movePTPJointRel, move)
+        assert c.middle(OP.movePTPJointRel, move).id == ReturnCode.FULL_MOTION_QUEUE_ERR
+        # setSoftLimitJoint is refused while motions are queued.
+        r = c.common(OP.setSoftLimitJoint, {"softLimit": IIWA.hard_limits})
+        assert r.id == STATUS_ERR and "queued" in r.comment, r
+        # stop: forwarded; its reply empties the queue at once.
+        rig.ok(Interface.MIDDLE, OP.stop)
+        assert peers.controls[-1] == "stop"
+        assert rig.state() == StateBit.SERVO_ON
+    finally:
+        states.close()
 
 
-def test_pause_resume_and_planner_edges(fake):
+def test_pause_and_resume_from_the_planners_word(fake):
     rig, peers = fake
     c = rig.client
     rig.ok(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 50})
     rig.ok(Interface.MIDDLE, OP.movePTPJointRel, {"jointPoints": (0.1,) + (0.0,) * (N - 1)})
-    motion = peers.plans[-1].motion
-    peers.progress(running=motion, queued=(motion,))
+    motion = peers.queued[-1]
     rig.ok(Interface.MIDDLE, OP.pause)
     assert peers.controls == ["pause"]
-    assert rig.state() == StateBit.SERVO_ON | StateBit.MOVING | StateBit.PAUSED
+    assert rig.state() == StateBit.SERVO_ON | StateBit.MOVING | StateBit.PAUSED  # from the reply
     r = c.middle(OP.pause)
     assert r.id == OK and "already paused" in r.comment and peers.controls == ["pause"]
-    peers.progress(running=motion, queued=(motion,), paused=False)  # published before the pause
-    rig.watcher_turns()  # the command has taken it up
-    assert rig.state() & StateBit.PAUSED
-    peers.progress(running=motion, queued=(motion,), paused=True)  # the planner agrees
-    rig.ok(Interface.MIDDLE, OP.resume)
-    assert peers.controls == ["pause", "resume"] and not rig.state() & StateBit.PAUSED
-    peers.progress(running=motion, queued=(motion,), paused=True)  # published before the resume
-    rig.watcher_turns()  # the command has taken it up
-    assert not rig.state() & StateBit.PAUSED
-    peers.progress(running=motion, queued=(motion,), paused=False)
-    peers.progress(running=motion, queued=(motion,), paused=True)  # a change of its own: an edge
-    wait_until(lambda: rig.state() & StateBit.PAUSED, 2, what="the planner's own pause adopted")
-    peers.progress(running=motion, queued=(motion,), paused=False)
-    wait_until(lambda: not rig.state() & StateBit.PAUSED, 2, what="the planner's own resume adopted")
-    peers.progress(last_done=motion)
-    wait_until(lambda: rig.state() == StateBit.SERVO_ON, 2, what="queue empty after lastDone")
+    states = StateLog(rig)
+    try:
+        peers.progress(queued=(motion,), paused=False, seq=peers.seq - 1)  # published before the pause
+        rig.ok(Interface.MIDDLE, OP.resume)
+        published = states.until(lambda m: not m["state"] & StateBit.PAUSED, "resumed")
+        assert [m["state"] for m in published] == [StateBit.SERVO_ON | StateBit.MOVING], published
+        assert peers.controls == ["pause", "resume"] and not rig.state() & StateBit.PAUSED
+        # The planner's own changes, published.
+        peers.progress(paused=True)
+        states.until(lambda m: m["state"] & StateBit.PAUSED, "the planner's own pause adopted")
+        peers.progress(paused=False)
+        states.until(lambda m: not m["state"] & StateBit.PAUSED, "the planner's own resume adopted")
+        peers.progress(queued=())
+        states.until(lambda m: m["state"] == StateBit.SERVO_ON, "queue empty")
+    finally:
+        states.close()
     # servoOFF aborts the planner.
     rig.ok(Interface.COMMON, OP.servoOFF)
     assert peers.controls[-1] == "abort"
@@ -788,49 +835,47 @@ def test_real_pause_sets_the_paused_bit(real: Rig):
 # ---------------------------------------------------------------------------- queue bookkeeping (no process)
 
 
-def progress(running=0, queued=(), done=0, discarded=0) -> PlannerProgress:
-    return PlannerProgress(Time.now(), running, tuple(queued), done, discarded, False, bool(running))
+def progress(queued=(), paused=False, seq=1, started=100.0) -> PlannerProgress:
+    return PlannerProgress(Time.now(), queued[0] if queued else 0, tuple(queued), 0, 0, paused, bool(queued),
+                           Time.from_seconds(started), seq)
 
 
-def test_motion_queue_keeps_what_progress_does_not_prove_finished():
-    from jara_arm.services.command.queue import MotionQueue
+def test_the_newest_planner_message_wins_by_its_number():
+    from jara_arm.services.command.state import StateTracker
 
-    q = MotionQueue(capacity=3)
-    ids = [q.allocate() for _ in range(3)]
-    assert ids == [1, 2, 3]
-    for i in ids:
-        q.add(i)
-    assert q.full
-    q.update(progress(running=1, queued=(1,)))  # older than the acceptance of 2 and 3
-    assert q.ids == (1, 2, 3)
-    q.update(progress(running=2, queued=(2, 3), done=1))
-    assert q.ids == (2, 3) and not q.full
-    q.update(progress(running=3, queued=(3, 7)))  # 7: accepted by the planner after our timeout
-    assert q.ids == (3, 7) and q.allocate() == 8
-    q.discard_all()  # stop
-    q.update(progress(running=3, queued=(3, 7)))  # published before the stop
-    assert q.ids == ()
-    q.add(9)
-    q.update(progress(discarded=7))
-    assert q.ids == (9,)
+    published: list[tuple[int, int]] = []
+    tracker = StateTracker(3, publish=lambda view: published.append((view.bits, view.queue_length)))
+    tracker.on_progress(progress((1, 2, 3), seq=5))
+    assert tracker.view().full and tracker.view().queue_length == 3
+    tracker.on_progress(progress((1,), seq=4))  # older: on its way before the last
+    tracker.on_progress(progress((1,), seq=5))  # the same number: nothing new
+    assert tracker.view().queue_length == 3
+    tracker.on_progress(progress((2, 3), paused=True, seq=6))
+    assert (tracker.view().queue_length, tracker.view().paused, tracker.view().full) == (2, True, False)
+    tracker.on_progress(None)  # the planner did not answer: nothing learnt
+    assert tracker.view().queue_length == 2
+    tracker.on_progress(progress((7,), seq=1, started=200.0))  # a restarted planner
+    assert tracker.view().queue_length == 1 and not tracker.view().paused
+    tracker.on_planner_gone()
+    assert tracker.view().queue_length == 0
+    tracker.on_progress(progress((7,), seq=2, started=200.0))  # still on its way from the gone one
+    assert tracker.view().queue_length == 0
+    tracker.on_progress(progress((), seq=1, started=300.0))
+    assert published == [(StateBit.MOVING | StateBit.BUFFER_FULL, 3), (StateBit.MOVING | StateBit.PAUSED, 2),
+                         (StateBit.MOVING, 1), (0, 0)]
 
 
-def test_own_pause_waits_for_the_planner_to_agree_but_not_forever(monkeypatch):
-    from jara_arm.services.command import state as state_module
-    from jara_arm.services.command.queue import MotionQueue
+def test_the_state_is_published_only_when_it_changes():
+    from jara_arm.services.command.state import StateTracker
 
-    monkeypatch.setattr(state_module, "CONFIRM_TIMEOUT", 0.05)
-    tracker = state_module.StateTracker(MotionQueue(capacity=4), publish=lambda view: None)
-    running = dataclasses.replace(progress(running=1, queued=(1,)), paused=False)
-    tracker.on_progress(running)
-    tracker.set_paused(True)
-    tracker.on_progress(running)  # on its way before the planner took the pause
-    assert tracker.view().paused
-    time.sleep(0.06)
-    tracker.on_progress(running)  # still not paused: the planner is the truth
-    assert not tracker.view().paused
-    tracker.set_paused(True)
-    tracker.on_progress(dataclasses.replace(running, paused=True))
-    tracker.set_paused(False)
-    tracker.on_progress(dataclasses.replace(running, paused=True))
-    assert not tracker.view().paused
+    published: list[int] = []
+    tracker = StateTracker(4, publish=lambda view: published.append(view.bits))
+    z = (0.0,) * N
+    status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
+    for _ in range(100):
+        tracker.on_status(status)
+        tracker.on_progress(progress(seq=1))
+        tracker.tick()
+    assert published == [StateBit.SERVO_ON]
+    tracker.on_status(dataclasses.replace(status, moving=True))
+    assert published == [StateBit.SERVO_ON, StateBit.SERVO_ON | StateBit.MOVING]

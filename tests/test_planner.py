@@ -10,7 +10,6 @@ Pinocchio forward kinematics.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import threading
 import time
 from collections.abc import Iterator
@@ -51,7 +50,6 @@ DT = 1e-3
 EXECUTED_TOL = 0.5e-3  # [m] executed path (FK of feedback) vs the ideal path
 PLANNED_TOL = 1e-6  # [m] commanded path (FK of posCmd) vs the ideal path
 HOLD_WINDOW = 0.2  # [s] of the servo's own time in which a paused arm must not move (an observation window)
-_ids = itertools.count(1)
 
 
 def rot_z(a: float) -> np.ndarray:
@@ -130,12 +128,14 @@ class Rig:
         return dataclasses.replace(s, **changes)
 
     def plan(self, op: str, args: dict | None = None, **settings: Any) -> Answer:
-        req = MotionRequest(next(_ids), op, args or {}, self.settings(**settings))
+        req = MotionRequest(op, args or {}, self.settings(**settings))
         replies = list(self.session.get(self.keys.planner_plan, payload=codec.encode_message(
             MOTION_REQUEST, req), timeout=20.0))
         assert len(replies) == 1 and replies[0].ok is not None, replies
         reply: PlanReply = codec.decode_message(PLAN_REPLY, replies[0].ok.payload.to_bytes())
-        return Answer(req.motion, reply.id, reply.comment, reply.endJoints, reply.duration)
+        if reply.id == ReturnCode.OK:  # the reply shows the queue it left: the motion in it
+            assert reply.motion > 0 and reply.progress.queued[-1] == reply.motion, reply.progress
+        return Answer(reply.motion, reply.id, reply.comment, reply.endJoints, reply.duration)
 
     def ok(self, op: str, args: dict | None = None, **settings: Any) -> Answer:
         reply = self.plan(op, args, **settings)
@@ -543,7 +543,7 @@ class TestIiwa:
             replies = list(rig.session.get(rig.keys.planner_plan, payload=payload, timeout=10.0))
             reply = codec.loads(replies[0].ok.payload.to_bytes())
             assert reply["id"] == ReturnCode.VALUE_ERR and reply["comment"], reply
-        unknown = MotionRequest(next(_ids), OP.getState, {}, rig.settings())
+        unknown = MotionRequest(OP.getState, {}, rig.settings())
         replies = list(rig.session.get(rig.keys.planner_plan, timeout=10.0,
                                        payload=codec.encode_message(MOTION_REQUEST, unknown)))
         assert codec.loads(replies[0].ok.payload.to_bytes())["id"] == ReturnCode.NOT_IMPLEMENTED
@@ -553,7 +553,8 @@ class TestIiwa:
         assert reply["id"] == ReturnCode.VALUE_ERR and "pause" in reply["comment"]
         assert rig.control(ControlAction.PAUSE)["comment"] == "OK: ignored, not moving"
         as_json = rig.client.raw(rig.keys.planner_control, b'{"action": "resume"}', json=True)
-        assert as_json == {"id": 0, "comment": "OK: ignored, not paused"}
+        assert (as_json["id"], as_json["comment"]) == (0, "OK: ignored, not paused")
+        assert as_json["progress"]["paused"] is False and as_json["progress"]["queued"] == []
         assert rig.control(ControlAction.ABORT)["id"] == ReturnCode.OK
 
 
@@ -612,13 +613,13 @@ def test_frames_base_offset_and_control_point_offset():
     q0 = _start(model)
     T0 = np.linalg.inv(B) @ planner.kin.control_point(q0, C)  # start, robot frame
     T1 = pose(T0[:3, 3] + [0.05, 0.1, -0.05], T0[:3, :3])
-    m = planner.plan(MotionRequest(1, OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
+    m = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
     pts = np.array([(np.linalg.inv(B) @ planner.kin.control_point(q, C))[:3, 3] for q in m.q])
     assert segment_distance(pts, T0[:3, 3], T1[:3, 3]).max() < PLANNED_TOL
     end = np.linalg.inv(B) @ planner.kin.control_point(m.end, C)
     assert np.abs(end - T1).max() < 1e-6
     up_and_turn = {"carPoint": car(pose([0, 0, 0.05], rot_z(0.2)))}
-    rel = planner.plan(MotionRequest(2, OP.movePTPCartesianRel, up_and_turn, s), m.end)
+    rel = planner.plan(MotionRequest(OP.movePTPCartesianRel, up_and_turn, s), m.end)
     end2 = np.linalg.inv(B) @ planner.kin.control_point(rel.end, C)
     assert np.abs(end2[:3, 3] - (T1[:3, 3] + [0, 0, 0.05])).max() < 1e-6  # added in the robot frame
     assert np.abs(end2[:3, :3] - rot_z(0.2) @ T1[:3, :3]).max() < 1e-6  # R_rel · R_start
@@ -630,14 +631,14 @@ def test_lin_is_slowed_down_for_the_joint_speed_limits():
     q0 = _start(model)
     T0 = planner.kin.control_point(q0)
     args = {"carPoint": car(pose(T0[:3, 3] + [0.0, 0.2, 0.0], T0[:3, :3]))}
-    fast = planner.plan(MotionRequest(1, OP.moveLinearCartesianAbs, args, _settings(model)), q0)
+    fast = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args, _settings(model)), q0)
     vmax = np.full(7, 0.2)  # [rad/s]
-    slow = planner.plan(MotionRequest(2, OP.moveLinearCartesianAbs, args,
+    slow = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args,
                                       _settings(model, maxSpeedJoint=tuple(vmax))), q0)
     assert slow.duration > fast.duration
     assert (np.abs(np.diff(slow.q, axis=0)) / DT).max(axis=0).max() <= 0.2 * (1 + 1e-9)
     with pytest.raises(PlanRefused) as refused:
-        planner.plan(MotionRequest(3, OP.moveLinearCartesianAbs, args,
+        planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args,
                                    _settings(model, maxSpeedJoint=(1e-4,) * 7)), q0)
     assert refused.value.code == ReturnCode.VALUE_ERR and "lowest speed" in refused.value.comment
 
@@ -666,7 +667,7 @@ def test_family_rules(name: str, op: str, code: ReturnCode):
         args = {"carPoint": car(pose([0.0, 0.05, -0.02], rot_z(0.2) @ tilt))}
     q0 = _start(model)
     try:
-        m = planner.plan(MotionRequest(1, op, args, _settings(model)), q0)
+        m = planner.plan(MotionRequest(op, args, _settings(model)), q0)
     except PlanRefused as exc:
         assert exc.code == code and code == ReturnCode.NG and "Cartesian robot cannot" in exc.comment
         return

@@ -10,7 +10,7 @@ import logging
 from jara_arm.schema.alarms import MONITOR_OPERATIONS
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.keys import Service
-from jara_arm.services.runtime.monitor_link import clear_reply, newest_copy
+from jara_arm.services.runtime.monitor_link import clear_reply, servo_copy
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import ok
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
@@ -49,7 +49,7 @@ class AlarmMonitorService(ArmService):
     def start(self, ctx: ServiceContext) -> None:
         monitor = Monitor(ctx.session, ctx.keys, ctx.model, ctx.heartbeat().pulse("the alarm monitor loop"),
                           ctx.health)
-        monitor.take_over(newest_copy(ctx.session, ctx.keys))  # before its first (empty) list goes out
+        monitor.take_over(servo_copy(ctx.session, ctx.keys))  # before its first (empty) list goes out
         monitor.start()
         ctx.closing(monitor.stop)
         ctx.watch("the alarm monitor thread", lambda: monitor.alive)

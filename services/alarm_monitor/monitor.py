@@ -120,8 +120,7 @@ class Monitor:
     def take_over(self, held: AlarmList | None) -> None:
         """Before :meth:`start`: the alarms an earlier monitor of this arm left active.
 
-        ``held`` is the newest list the servo and the command service hold
-        (``Monitor/copy``): a monitor restarted while the arm was stopped by a
+        ``held`` is the list the servo holds (``Monitor/copy``): a monitor restarted while the arm was stopped by a
         FAULT keeps it listed, and ``clearAlarms`` judges its cause as usual.
         """
         if held is None or held.started == self.started or not held.alarms:

@@ -44,7 +44,6 @@ class CommandCommon:
             if reply is None:  # no alarm monitor: the servo clears its own (and says so)
                 reply = core.servo.call(OP.clearAlarms)
                 if reply.id != ReturnCode.NG:
-                    core.state.forget_alarms()
                     core.state.await_servo()  # the alarm bit read next shows it
                 return reply
             alarms = core.monitor.alarm_list()  # the bit read next shows the clear at once...
@@ -76,13 +75,13 @@ class CommandCommon:
             reply = core.servo.call(OP.servoOFF)
             # Abort even if the servo did not answer: nothing must be streamed any more.
             abort = core.planner.control(ControlAction.ABORT)
-            core.state.discarded()
+            core.state.on_progress(abort.progress)
             if reply.ok:
                 core.state.await_servo(lambda st: not st.servoOn)
                 log.info("servo off; motion queue discarded")
-            if not abort.ok:
+            if not abort.reply.ok:
                 # The servo is off, which is what was asked; a missing planner has nothing queued.
-                return with_note(reply, f"planner abort not confirmed: {abort.comment}")
+                return with_note(reply, f"planner abort not confirmed: {abort.reply.comment}")
             return reply
 
     def servoON(self) -> Reply:

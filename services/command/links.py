@@ -8,6 +8,7 @@ of the system is missing.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping
 from typing import Any
@@ -15,13 +16,21 @@ from typing import Any
 import zenoh
 
 from jara_arm.schema import codec
-from jara_arm.schema import wire_types as w
-from jara_arm.schema.codec import Encoding, Reply
+from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import COMMON
-from jara_arm.schema.planner import CONTROL_REQUEST, MOTION_REQUEST, ControlAction, ControlRequest, MotionRequest
+from jara_arm.schema.planner import (
+    CONTROL_REPLY,
+    CONTROL_REQUEST,
+    MOTION_REQUEST,
+    PLAN_REPLY,
+    ControlAction,
+    ControlRequest,
+    MotionRequest,
+    PlannerProgress,
+)
 from jara_arm.services.runtime.ask import Answer, Asker
 from jara_arm.services.runtime.timing import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT
 
@@ -73,6 +82,15 @@ class ServoLink(_Peer):
             return self.malformed(key, exc)
 
 
+@dataclasses.dataclass(frozen=True)
+class PlannerAnswer:
+    """A planner call's verdict, passed on to the client, and the queue as the call left it."""
+
+    reply: Reply
+    motion: int = 0  # the id the planner gave a queued motion
+    progress: PlannerProgress | None = None  # None when the planner did not answer
+
+
 class PlannerLink(_Peer):
     """``Planner/plan`` and ``Planner/control`` (schema.planner)."""
 
@@ -84,24 +102,25 @@ class PlannerLink(_Peer):
         self.plan_timeout = plan_timeout
         self.control_timeout = control_timeout
 
-    def plan(self, request: MotionRequest) -> Reply:
-        """The planner's verdict on one motion (its id and comment, passed on to the client)."""
+    def plan(self, request: MotionRequest) -> PlannerAnswer:
+        """The planner's verdict on one motion."""
         key = self._keys.planner_plan
         got = self.query(key, codec.encode_message(MOTION_REQUEST, request))
-        return got if isinstance(got, Reply) else self._return_id(key, got.payload, got.encoding)
+        if isinstance(got, Reply):
+            return PlannerAnswer(got)
+        try:
+            plan = codec.decode_message(PLAN_REPLY, got.payload, got.encoding)
+        except WireError as exc:
+            return PlannerAnswer(self.malformed(key, exc))
+        return PlannerAnswer(Reply(plan.id, plan.comment), plan.motion, plan.progress)
 
-    def control(self, action: ControlAction) -> Reply:
+    def control(self, action: ControlAction) -> PlannerAnswer:
         key = self._keys.planner_control
         got = self.query(key, codec.encode_message(CONTROL_REQUEST, ControlRequest(action.value)))
-        return got if isinstance(got, Reply) else self._return_id(key, got.payload, got.encoding)
-
-    def _return_id(self, key: str, payload: bytes, encoding: Encoding) -> Reply:
-        """``{id, comment}`` of a planner reply; a ``PlanReply`` refusal may carry nothing else."""
+        if isinstance(got, Reply):
+            return PlannerAnswer(got)
         try:
-            value = codec.loads(payload, encoding)
-            if not isinstance(value, dict):
-                raise WireError("payload", "a reply must be a map")
-            return Reply(w.LONG.decode(value.get("id"), "id"),
-                         w.STRING.decode(value.get("comment"), "comment"))
+            control = codec.decode_message(CONTROL_REPLY, got.payload, got.encoding)
         except WireError as exc:
-            return self.malformed(key, exc)
+            return PlannerAnswer(self.malformed(key, exc))
+        return PlannerAnswer(Reply(control.id, control.comment), progress=control.progress)

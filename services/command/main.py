@@ -1,4 +1,4 @@
-"""The command service (middle level): ``Common`` and ``Middle``, settings, motion queue, state.
+"""The command service (middle level): ``Common`` and ``Middle``, settings, state.
 
 ``python -m jara_arm.services.command --arm arm0 --robot iiwa --mode client --connect tcp/127.0.0.1:7447``
 """
@@ -21,10 +21,9 @@ from .core import Core
 from .feedback import JointFeedback
 from .links import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT, PlannerLink, ServoLink
 from .middle import CommandMiddle
-from .queue import DEFAULT_CAPACITY, MotionQueue
 from .settings import Settings
 from .settings_publisher import SETTINGS_PERIOD, SettingsPublisher
-from .state import StateTracker, StateView
+from .state import DEFAULT_CAPACITY, StateTracker, StateView
 from .watch import Watcher
 
 log = logging.getLogger("jara_arm.command")
@@ -65,7 +64,7 @@ class CommandService(ArmService):
     def start(self, ctx: ServiceContext) -> None:
         session, keys, robot, opts = ctx.session, ctx.keys, ctx.model, ctx.options
         state_pub = ctx.enter(session.declare_publisher(keys.state))
-        tracker = StateTracker(MotionQueue(opts.queue_capacity), lambda v: state_pub.put(state_payload(v)))
+        tracker = StateTracker(opts.queue_capacity, lambda v: state_pub.put(state_payload(v)))
         watcher = Watcher(session, keys, tracker, ctx.heartbeat().pulse("the state watcher"))
         watcher.start()
         ctx.closing(watcher.stop)

@@ -132,17 +132,15 @@ class CommandMiddle:
             if not limits.ok:
                 return refuse(ReturnCode.NG, f"{name} refused: joint soft limits unavailable: "
                               f"{limits.comment}")
-            motion = core.state.allocate()
             wire_args = {p.name: p.type.encode(args[p.name]) for p in op.inputs}
-            request = MotionRequest(motion, name, wire_args,
-                                    self.settings.snapshot(limits["softLimit"]))
-            reply = core.planner.plan(request)
-            if reply.ok:
-                core.state.accepted(motion)
-                log.debug("motion %d %s queued", motion, name)
+            request = MotionRequest(name, wire_args, self.settings.snapshot(limits["softLimit"]))
+            answer = core.planner.plan(request)
+            core.state.on_progress(answer.progress)  # the queue as it is now, before serial is let go
+            if answer.reply.ok:
+                log.debug("motion %d %s queued", answer.motion, name)
             else:
-                log.info("motion %d %s refused by the planner: %s", motion, name, reply.comment)
-            return Reply(reply.id, reply.comment)
+                log.info("%s refused by the planner: %s", name, answer.reply.comment)
+            return answer.reply
 
     # -- pause, resume, stop ----------------------------------------------------------
     def pause(self) -> Reply:
@@ -154,10 +152,7 @@ class CommandMiddle:
                    else "already paused" if view.paused else "not moving" if not view.moving else "")
             if why:
                 return ok(f"{OP.pause} ignored: {why}")
-            reply = core.planner.control(ControlAction.PAUSE)
-            if reply.ok:
-                core.state.set_paused(True)
-            return reply
+            return self._control(ControlAction.PAUSE)
 
     def resume(self) -> Reply:
         """Ignored (OK, says so) unless paused."""
@@ -165,10 +160,7 @@ class CommandMiddle:
         with core.serial:
             if not core.state.view().paused:
                 return ok(f"{OP.resume} ignored: not paused")
-            reply = core.planner.control(ControlAction.RESUME)
-            if reply.ok:
-                core.state.set_paused(False)
-            return reply
+            return self._control(ControlAction.RESUME)
 
     def stop(self) -> Reply:
         """Ignored (OK, says so) when servo off or alarmed; else the queue and the pause go."""
@@ -178,10 +170,12 @@ class CommandMiddle:
             if not view.servo_on or view.alarm:
                 why = "the servo is off" if not view.servo_on else "an alarm is active"
                 return ok(f"{OP.stop} ignored: {why}")
-            reply = core.planner.control(ControlAction.STOP)
-            if reply.ok:
-                core.state.discarded()
-            return reply
+            return self._control(ControlAction.STOP)
+
+    def _control(self, action: ControlAction) -> Reply:
+        answer = self.core.planner.control(action)
+        self.core.state.on_progress(answer.progress)  # getState read next shows it
+        return answer.reply
 
     # -- feedback -------------------------------------------------------------------------
     def getFeedbackPosCartesian(self) -> Reply:

@@ -1,25 +1,23 @@
 """The command service's state bits (``getState``) and their publication on ``JARA_ARM/<arm>/state``.
 
-Sources: the servo's ``Servo/status`` (servo on, moving, alarm), the planner's
-``Planner/progress`` (queue, paused) and the command's own acceptances and
-control calls. The bits:
+The command owns none of the facts it reports; it reads each from its owner:
 
-* 0x01 servo on: the servo says so, and it spoke within ``stale_after``; a
-  silent servo counts as off (a real drive that stops talking faults).
-* 0x02 moving: the servo moves, or the queue holds motions (running, waiting or
-  paused: the arm is not done with them).
-* 0x04 alarm: the alarm monitor's list (``Monitor/alarms``) is not empty, or
-  the servo reports an active alarm (its own latches, which it keeps even
-  without a monitor).
-* 0x08 queue full: the queue holds ``capacity`` motions.
-* 0x10 paused.
+* 0x01 servo on: the servo's ``Servo/status`` says so, and it spoke within
+  ``stale_after``; a silent servo counts as off (a real drive that stops
+  talking faults).
+* 0x02 moving: the servo moves, or the planner's queue holds motions
+  (running, waiting or paused: the arm is not done with them).
+* 0x04 alarm: the alarm monitor's list (``Monitor/alarms``, while the monitor
+  is up) is not empty, or the servo reports an active alarm (its own latches
+  and the monitor's list, which it keeps while the monitor restarts).
+* 0x08 queue full: the planner's queue holds ``capacity`` motions.
+* 0x10 paused: the planner says so.
 
-``paused`` follows the command's own successful pause/resume/stop/abort at
-once, and the planner's ``paused`` flag in its first message and whenever it
-changes (an edge). After the command's own pause or resume, the planner's flag
-counts again only once it agrees (or after ``CONFIRM_TIMEOUT``): a progress
-message published before the planner took the call, and delivered after its
-reply, must not undo it.
+The planner's queue and pause come in its ``PlannerProgress``, by publication
+and in the reply to every plan and control call; the newest one by its number
+wins (``schema.planner.is_newer``), so a publication that arrives after a
+reply it predates changes nothing. A planner or monitor that went away takes
+its facts with it: its later messages, still on their way, are ignored.
 """
 
 from __future__ import annotations
@@ -30,26 +28,22 @@ import threading
 import time
 from collections.abc import Callable
 
+from jara_arm.schema import alarms as alarm_lists
+from jara_arm.schema import planner as planner_progress
 from jara_arm.schema.alarms import AlarmList
 from jara_arm.schema.codes import StateBit
 from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.planner import PlannerProgress
-from jara_arm.schema.types import Alarm, LimitValue
-from jara_arm.services.runtime.monitor_link import is_newer
-
-from .queue import MotionQueue
+from jara_arm.schema.types import LimitValue
 
 log = logging.getLogger(__name__)
 
 #: Without a ``Servo/status`` for this long the servo counts as gone [s]
 #: (it publishes every 10 cycles, i.e. at 100 Hz with a 1 ms cycle).
 STATUS_STALE_AFTER = 1.0
-#: Longest wait for the first Planner/progress of a planner that just appeared [s] (it
-#: publishes at 10 Hz at least).
-FIRST_PROGRESS_TIMEOUT = 0.5
-#: Longest time the planner's ``paused`` flag is ignored after the command's own pause or
-#: resume, while it disagrees [s] (the planner publishes on every change, and at 10 Hz).
-CONFIRM_TIMEOUT = 0.5
+#: Default capacity of the planner's queue as the command enforces it [motions]
+#: (DECISIONS.md "Motion commands").
+DEFAULT_CAPACITY = 32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,23 +75,21 @@ Publish = Callable[[StateView], None]
 class StateTracker:
     """Thread-safe state of the command service; publishes on every change."""
 
-    def __init__(self, queue: MotionQueue, publish: Publish,
-                 stale_after: float = STATUS_STALE_AFTER) -> None:
-        self._queue = queue
+    def __init__(self, capacity: int, publish: Publish, stale_after: float = STATUS_STALE_AFTER) -> None:
+        if capacity < 1:
+            raise ValueError(f"queue capacity must be at least 1, got {capacity}")
+        self.capacity = capacity
         self._publish = publish
         self._stale_after = stale_after
         self._cond = threading.Condition()
         self._status: ServoStatus | None = None
         self._status_at = -float("inf")  # [s] monotonic time of the last Servo/status
         self._status_count = 0
-        self._paused = False
-        self._planner_paused: bool | None = None  # last value of PlannerProgress.paused
-        self._confirm: tuple[bool, float] | None = None  # own pause/resume awaiting the planner's word
+        self._progress: PlannerProgress | None = None  # the planner's newest, None while it is away
+        self._planner_gone_at = -float("inf")  # ``started`` [s] of the last planner that went away
+        self._alarms: AlarmList | None = None  # the monitor's newest list, None while it is away
+        self._monitor_gone_at = -float("inf")  # ``started`` [s] of the last monitor that went away
         self._published: tuple[int, int] | None = None
-        self._planner_up = False  # its liveliness token is there
-        self._progress_since_up = False  # a Planner/progress arrived since the token appeared
-        self._monitor_list: AlarmList | None = None  # the newest list of the alarm monitor
-        self._monitor_alarms: tuple[Alarm, ...] = ()  # its alarms (forgotten by a clear without it)
 
     # -- reading ------------------------------------------------------------------
     def view(self) -> StateView:
@@ -107,16 +99,17 @@ class StateTracker:
     def _view(self) -> StateView:
         heard = self._status is not None and time.monotonic() - self._status_at <= self._stale_after
         st = self._status if heard else None
-        q = self._queue
+        progress = self._progress
+        queued = len(progress.queued) if progress is not None else 0
         return StateView(
             servo_heard=heard,
             servo_on=bool(st and st.servoOn),
-            moving=bool(st and st.moving) or len(q) > 0,
-            alarm=bool(st and st.alarm) or bool(self._monitor_alarms),
-            full=q.full,
-            paused=self._paused,
-            queue_length=len(q),
-            capacity=q.capacity,
+            moving=bool(st and st.moving) or queued > 0,
+            alarm=bool(st and st.alarm) or bool(self._alarms and self._alarms.alarms),
+            full=queued >= self.capacity,
+            paused=bool(progress and progress.paused),
+            queue_length=queued,
+            capacity=self.capacity,
         )
 
     def measured_joints(self) -> tuple[tuple[float, ...], float] | None:
@@ -125,6 +118,12 @@ class StateTracker:
         if st is None or not st.pos:
             return None
         return st.pos, time.monotonic() - at
+
+    @property
+    def soft_limit_joint(self) -> tuple[LimitValue, ...]:
+        """The servo's joint soft limits from its newest status; () before the first one."""
+        st = self._status
+        return tuple(st.softLimitJoint) if st is not None else ()
 
     # -- inputs -----------------------------------------------------------------------
     def on_status(self, status: ServoStatus) -> None:
@@ -135,116 +134,44 @@ class StateTracker:
             self._cond.notify_all()
             self._changed()
 
-    def on_progress(self, progress: PlannerProgress) -> None:
+    def on_progress(self, progress: PlannerProgress | None) -> None:
+        """A ``PlannerProgress``, published or in a reply (None: the planner did not answer)."""
         with self._cond:
-            self._progress_since_up = True
-            self._cond.notify_all()
-            self._queue.update(progress)
-            if self._confirm is not None:
-                paused, since = self._confirm
-                if progress.paused != paused and time.monotonic() - since < CONFIRM_TIMEOUT:
-                    self._changed()
-                    return  # sent before the planner took our call
-                self._confirm = None
-                self._paused = progress.paused  # it agrees, or it is the truth after all
-            elif self._planner_paused is None or progress.paused != self._planner_paused:
-                self._paused = progress.paused  # first message (adopt it) or an edge
-            self._planner_paused = progress.paused
+            if (progress is None or progress.started.to_seconds() <= self._planner_gone_at
+                    or not planner_progress.is_newer(progress, self._progress)):
+                return
+            self._progress = progress
             self._changed()
-
-    def on_alarms(self, alarms: AlarmList) -> None:
-        """The alarm monitor's list: bit 0x04 follows it; a new alarm ends every queued motion.
-
-        A FAULT switches the servo off and aborts the planner, a WARNING stops it:
-        either way nothing queued will run (the planner's progress says so too,
-        unless it is the one that failed).
-        """
-        with self._cond:
-            if not is_newer(alarms, self._monitor_list):
-                return  # published before the list already adopted
-            before = {a.code for a in self._monitor_alarms}
-            self._monitor_list = alarms
-            self._monitor_alarms = alarms.alarms
-            if any(a.code not in before for a in alarms.alarms) and len(self._queue):
-                log.warning("alarm raised: the motion queue (%d) is discarded", len(self._queue))
-                self._queue.discard_all()
-                self._expect_paused(False)
-            self._changed()
-
-    @property
-    def monitor_list(self) -> AlarmList | None:
-        """The newest alarm list adopted from the monitor, less what was cleared without it (None before)."""
-        with self._cond:
-            if self._monitor_list is None:
-                return None
-            return dataclasses.replace(self._monitor_list, alarms=self._monitor_alarms)
-
-    def forget_alarms(self) -> None:
-        """clearAlarms without an alarm monitor: its (old) list no longer counts."""
-        with self._cond:
-            self._monitor_alarms = ()
-            self._changed()
-
-    @property
-    def soft_limit_joint(self) -> tuple[LimitValue, ...]:
-        """The servo's joint soft limits from its newest status; () before the first one."""
-        st = self._status
-        return tuple(st.softLimitJoint) if st is not None else ()
-
-    def on_planner_up(self) -> None:
-        with self._cond:
-            self._planner_up = True
-            self._progress_since_up = False
 
     def on_planner_gone(self) -> None:
         """The planner's liveliness token went away: its queue and pause went with it."""
         with self._cond:
-            self._planner_up = False
-            self._queue.forget()
-            self._paused = False
-            self._planner_paused = None
-            self._confirm = None
+            if self._progress is not None:
+                self._planner_gone_at = self._progress.started.to_seconds()
+            self._progress = None
+            self._changed()
+
+    def on_alarms(self, alarms: AlarmList) -> None:
+        """The alarm monitor's list: bit 0x04 follows it."""
+        with self._cond:
+            if (alarms.started.to_seconds() <= self._monitor_gone_at
+                    or not alarm_lists.is_newer(alarms, self._alarms)):
+                return
+            self._alarms = alarms
+            self._changed()
+
+    def on_monitor_gone(self) -> None:
+        """The monitor's liveliness token went away: the servo holds its list until a new one takes over."""
+        with self._cond:
+            if self._alarms is not None:
+                self._monitor_gone_at = self._alarms.started.to_seconds()
+            self._alarms = None
             self._changed()
 
     def tick(self) -> None:
         """Re-evaluate time-dependent bits (a servo that fell silent)."""
         with self._cond:
             self._changed()
-
-    # -- the command's own actions ------------------------------------------------------
-    def allocate(self, timeout: float = FIRST_PROGRESS_TIMEOUT) -> int:
-        """A new motion id, above every id the planner reported.
-
-        A planner that outlived a previous command process reports its ids in
-        its first progress message; wait for it (bounded), so that a new id is
-        never one the planner already finished.
-        """
-        with self._cond:
-            if self._planner_up and not self._progress_since_up:
-                self._cond.wait_for(lambda: self._progress_since_up, timeout)
-            return self._queue.allocate()
-
-    def accepted(self, motion: int) -> None:
-        with self._cond:
-            self._queue.add(motion)
-            self._changed()
-
-    def discarded(self) -> None:
-        """stop or abort accepted by the planner: the queue and the pause are gone."""
-        with self._cond:
-            self._queue.discard_all()
-            self._expect_paused(False)
-            self._changed()
-
-    def set_paused(self, paused: bool) -> None:
-        """The planner accepted our pause (True) or resume (False)."""
-        with self._cond:
-            self._expect_paused(paused)
-            self._changed()
-
-    def _expect_paused(self, paused: bool) -> None:
-        self._paused = paused
-        self._confirm = (paused, time.monotonic())
 
     def await_servo(self, done: Callable[[ServoStatus], bool] | None = None, count: int = 2,
                     timeout: float = 0.5) -> bool:

@@ -1,4 +1,4 @@
-"""The thread that feeds the state tracker from the servo, the planner, its liveliness and the alarm monitor.
+"""The thread that feeds the state tracker from the servo, the planner, the alarm monitor and their liveliness.
 
 Zenoh only fills channels (RingChannel for the servo status, where the newest
 value is what counts; FifoChannel for planner progress and liveliness, where
@@ -20,7 +20,6 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.planner import PLANNER_PROGRESS
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
-from jara_arm.services.runtime.monitor_link import AlarmListCopy
 from jara_arm.services.runtime.timing import WATCHER_POLL
 
 from .state import StateTracker
@@ -33,7 +32,8 @@ _ALARMS_FIFO = 64  #: Monitor/alarms lists kept between drains
 
 
 class Watcher:
-    """Subscribes to ``Servo/status``, ``Planner/progress``, the planner's liveliness and ``Monitor/alarms``."""
+    """Subscribes to ``Servo/status``, ``Planner/progress``, ``Monitor/alarms`` and the liveliness of the
+    planner and the monitor."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker,
                  pulse: Pulse | None = None) -> None:
@@ -49,7 +49,8 @@ class Watcher:
             keys.alive(Service.PLANNER), zenoh.handlers.FifoChannel(64), history=True))
         self._alarms = enter(session.declare_subscriber(keys.monitor_alarms,
                                                         zenoh.handlers.FifoChannel(_ALARMS_FIFO)))
-        self._alarm_copy = AlarmListCopy(session, keys, Service.COMMAND)
+        self._monitor = enter(session.liveliness().declare_subscriber(
+            keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True))
         self._stop = threading.Event()
         self._bad = 0  # malformed messages seen (logged once per kind)
         self._thread = threading.Thread(target=self._run, name="command-watch", daemon=True)
@@ -64,7 +65,6 @@ class Watcher:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2.0)
-        self._alarm_copy.close()
         self._entities.close()
 
     def _run(self) -> None:
@@ -80,13 +80,15 @@ class Watcher:
                 self._tracker.on_planner_gone()
             else:
                 log.info("the planner service is up")
-                self._tracker.on_planner_up()
+        while (s := self._monitor.try_recv()) is not None:
+            if s.kind == zenoh.SampleKind.DELETE:
+                log.warning("the alarm monitor is gone: the servo holds its alarms")
+                self._tracker.on_monitor_gone()
         while (s := self._alarms.try_recv()) is not None:
             try:
                 self._tracker.on_alarms(codec.decode_message(ALARM_LIST, s.payload.to_bytes()))
             except WireError as exc:
                 self._malformed("Monitor/alarms", exc)
-        self._alarm_copy.answer(lambda: self._tracker.monitor_list)
         while (s := self._progress.try_recv()) is not None:
             try:
                 self._tracker.on_progress(codec.decode_message(PLANNER_PROGRESS, s.payload.to_bytes()))

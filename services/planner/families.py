@@ -61,9 +61,8 @@ import functools
 import numpy as np
 from numpy.typing import NDArray
 
-from jara_arm.robots import Family, RobotModel
-
 from jara_arm.kinematics import FULL_MASK, Kinematics, Mask
+from jara_arm.robots import Family, RobotModel
 
 #: Components of a pose task: positions x, y, z, rotations rx, ry, rz (arm base frame axes).
 _XY: Mask = (True, True, False, False, False, False)

@@ -34,11 +34,13 @@ from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import Service
 from jara_arm.schema.planner import (
+    CONTROL_REPLY,
     CONTROL_REQUEST,
     MOTION_REQUEST,
     PLAN_REPLY,
     PLANNER_PROGRESS,
     ControlAction,
+    ControlReply,
     PlannerProgress,
     PlanReply,
 )
@@ -103,40 +105,48 @@ class PlannerService:
         return codec.encode_message(PLAN_REPLY, self.plan(payload, encoding), encoding)
 
     def plan(self, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> PlanReply:
-        """Decode, plan and queue one motion; the reply says OK or why not."""
+        """Decode, plan and queue one motion; the reply says OK (with the motion's id) or why not."""
         try:
             req = codec.decode_message(MOTION_REQUEST, payload, encoding)
         except WireError as exc:
             log.info("motion request refused: %s", exc)
-            return PlanReply(int(ReturnCode.VALUE_ERR), str(exc), (), 0.0)
+            return self._refused(ReturnCode.VALUE_ERR, str(exc))
         for _ in range(_REPLAN):
             try:
                 start, generation = self.streamer.start_point()
                 t0 = time.perf_counter()
                 motion = self.planner.plan(req, start)
             except PlanRefused as exc:
-                log.info("motion %d %s refused (%s): %s", req.motion, req.op, exc.code.name, exc.comment)
-                return PlanReply(int(exc.code), exc.comment, (), 0.0)
-            if self.streamer.submit(motion, generation):
-                log.info("motion %d %s accepted: %.3f s long, planned in %.0f ms", req.motion, req.op,
+                log.info("%s refused (%s): %s", req.op, exc.code.name, exc.comment)
+                return self._refused(exc.code, exc.comment)
+            queued = self.streamer.submit(motion, generation)
+            if queued is not None:
+                motion_id, progress = queued
+                log.info("motion %d %s accepted: %.3f s long, planned in %.0f ms", motion_id, req.op,
                          motion.duration, (time.perf_counter() - t0) * 1e3)
-                return PlanReply(int(ReturnCode.OK), "OK", tuple(motion.end.tolist()), motion.duration)
-            log.info("motion %d %s: the queue was stopped while planning; planning again",
-                     req.motion, req.op)
-        return PlanReply(int(ReturnCode.STATUS_ERR), "the queue kept being stopped while planning", (), 0.0)
+                return PlanReply(int(ReturnCode.OK), "OK", motion_id, tuple(motion.end.tolist()),
+                                 motion.duration, progress)
+            log.info("%s: the queue was stopped while planning; planning again", req.op)
+        return self._refused(ReturnCode.STATUS_ERR, "the queue kept being stopped while planning")
+
+    def _refused(self, code: ReturnCode, comment: str) -> PlanReply:
+        return PlanReply(int(code), comment, 0, (), 0.0, self.streamer.progress())
 
     def _answer_control(self, payload: bytes, encoding: Encoding) -> bytes:
+        return codec.encode_message(CONTROL_REPLY, self.control(payload, encoding), encoding)
+
+    def control(self, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> ControlReply:
+        """Decode and apply one pause / resume / stop / abort."""
         try:
             req = codec.decode_message(CONTROL_REQUEST, payload, encoding)
             action = ControlAction(req.action)
         except WireError as exc:
-            code, comment = ReturnCode.VALUE_ERR, str(exc)
+            return ControlReply(int(ReturnCode.VALUE_ERR), str(exc), self.streamer.progress())
         except ValueError:
-            code, comment = ReturnCode.VALUE_ERR, (f"action: unknown {req.action!r}; valid: "
-                                                  + ", ".join(a.value for a in ControlAction))
-        else:
-            code, comment = self.streamer.control(action)
-        return codec.dumps({"id": int(code), "comment": comment}, encoding)
+            return ControlReply(int(ReturnCode.VALUE_ERR), f"action: unknown {req.action!r}; valid: "
+                                + ", ".join(a.value for a in ControlAction), self.streamer.progress())
+        code, comment, progress = self.streamer.control(action)
+        return ControlReply(int(code), comment, progress)
 
 class PlannerProgram(ArmService):
     """Plans, queues and streams one arm's motions; the planning itself in a child process."""

@@ -44,6 +44,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from jara_arm.kinematics import Kinematics, KinematicsError, hg_to_se3
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema.codes import ReturnCode
@@ -54,7 +55,6 @@ from jara_arm.schema.types import CarPosWithElbow
 
 from . import families
 from .families import CartesianKind, CartesianRule, Orientation
-from jara_arm.kinematics import Kinematics, KinematicsError, hg_to_se3
 from .paths import CartesianArc, CartesianLine, PathGeometryError
 from .profile import (
     PathMotion,
@@ -65,7 +65,7 @@ from .profile import (
     plan_joint_ptp,
 )
 from .sampling import BatchFk, PathJoints, Tolerances, Unreachable
-from .trajectory import Joints, LineMap, PlannedMotion, TableMap
+from .trajectory import UNQUEUED, Joints, LineMap, PlannedMotion, TableMap
 
 #: IK tolerance at LIN / CIRC knots and for PTP-Cartesian targets [m] and [rad].
 IK_TOLERANCE = 1e-7
@@ -293,7 +293,7 @@ class MotionPlanner:
 
     def _motion(self, req: MotionRequest, motion: PathMotion) -> PlannedMotion:
         _, q = motion.sample(self.dt)
-        return PlannedMotion(req.motion, req.op, LineMap(motion.path), motion.profile, q, self.dt)
+        return PlannedMotion(UNQUEUED, req.op, LineMap(motion.path), motion.profile, q, self.dt)
 
     def _joint_ptp(self, req: MotionRequest, start: Joints, target: Joints,
                    what: str = "target") -> PlannedMotion:
@@ -362,7 +362,7 @@ class MotionPlanner:
         speed = cartesian_path_speed(path, vt, vr, s.spdRatioCartesian / 100.0)
         if math.isinf(speed):  # the target is the start pose: nothing to do
             profile = move_profile(path.length, ProfileLimits(math.inf, math.inf, math.inf), path.length)
-            return PlannedMotion(req.motion, req.op, TableMap.build(np.zeros(1), start[None, :]),
+            return PlannedMotion(UNQUEUED, req.op, TableMap.build(np.zeros(1), start[None, :]),
                                  profile, start[None, :].copy(), self.dt)
         lowest = cartesian_path_speed(path, vt, vr, LOWEST_SPEED_RATIO)
         vmax = self._vmax(s)[:self.n]
@@ -393,7 +393,7 @@ class MotionPlanner:
             over = np.abs(np.diff(q[:, :self.n], axis=0)) / self.dt / vmax  # [-] joint speed / max
             worst = float(over.max()) if over.size else 0.0
             if worst <= 1.0:
-                return PlannedMotion(req.motion, req.op, TableMap.build(samples.s, q), profile, q, self.dt)
+                return PlannedMotion(UNQUEUED, req.op, TableMap.build(samples.s, q), profile, q, self.dt)
             new_speed = speed * JOINT_SPEED_MARGIN / worst
             if new_speed < lowest:
                 k, i = np.unravel_index(int(over.argmax()), over.shape)

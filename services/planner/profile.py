@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
 import numpy as np
 import ruckig
 from numpy.typing import ArrayLike, NDArray

@@ -41,15 +41,12 @@ from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.planner import ControlAction, PlannerProgress
 from jara_arm.schema.types import Time
-
 from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.realtime import realtime_thread
-
 from jara_arm.services.runtime.timing import SAME_HOST, STREAM_BLOCK, STREAM_LEAD, STREAMER_IDLE
 
 from .planning import PlanRefused
 from .profile import PathProfile
-
 from .servo_fifo import FifoEstimate
 from .trajectory import Joints, PlannedMotion
 
@@ -133,6 +130,9 @@ class Streamer:
         self._generation = 0  # changes when the queue's end moves other than by submit()
         self._last_done = 0
         self._last_discarded = 0
+        self._last_id = 0  # the motion ids this planner gave, increasing
+        self._started = Time.from_seconds(time.time())
+        self._snapshot: PlannerProgress | None = None  # the newest progress, numbered by its seq
         self._status: ServoStatus | None = None
         self._status_at = 0.0  # [s] arrival of the last status
         self._underruns: int | None = None
@@ -182,20 +182,30 @@ class Streamer:
                 return self._tail.copy(), self._generation  # exactly where we left it
             return target, self._generation
 
-    def submit(self, motion: PlannedMotion, generation: int) -> bool:
-        """Queue ``motion`` planned from ``start_point()``; False if the queue's end moved since."""
+    def submit(self, motion: PlannedMotion, generation: int) -> tuple[int, PlannerProgress] | None:
+        """Queue ``motion`` planned from ``start_point()``: its id and the progress it left
+        behind, or None (nothing queued) if the queue's end moved since."""
         with self._lock:
             if generation != self._generation:
-                return False
+                return None
+            self._last_id += 1
+            motion = dataclasses.replace(motion, motion=self._last_id)
             self._queue.append(motion)
             self._tail = motion.end.copy()
+            progress = self._progress(time.time())
         self._wake.set()
-        return True
+        return motion.motion, progress
+
+    def progress(self) -> PlannerProgress:
+        """The queue and the pause now."""
+        with self._lock:
+            return self._progress(time.time())
 
     # ------------------------------------------------------------------ control
 
-    def control(self, action: ControlAction) -> tuple[ReturnCode, str]:
-        """Apply ``action``; returns (code, comment) once any braking is queued for sending."""
+    def control(self, action: ControlAction) -> tuple[ReturnCode, str, PlannerProgress]:
+        """Apply ``action``; returns (code, comment, the progress it left behind) once any
+        braking is queued for sending."""
         with self._lock:
             now = time.time()
             if action is ControlAction.PAUSE:
@@ -207,10 +217,11 @@ class Streamer:
             else:
                 self._abort("abort requested")
                 result = "OK: motion aborted, queue discarded"
+            progress = self._progress(now)
         self._wake.set()
         if result.startswith("OK: ignored"):
             log.info("%s %s", action.value, result[4:])
-        return ReturnCode.OK, result
+        return ReturnCode.OK, result, progress
 
     def _pause(self, now: float) -> str:
         if self._paused:
@@ -299,6 +310,7 @@ class Streamer:
                 and now >= self._busy_until + settle)
 
     def _progress(self, now: float) -> PlannerProgress:
+        """The progress now, numbered: ``seq`` grows when anything but the time changed (lock held)."""
         ids = [i for i, _ in self._inflight]
         seg = self._active
         if seg is not None and seg.kind is not _Kind.STOP:
@@ -309,8 +321,14 @@ class Streamer:
         moving = bool(self._inflight) or (seg is not None and seg.kind is not _Kind.STOP)
         running = ids[0] if moving else 0  # 0 while paused at rest, stopping or about to start
         streaming = seg is not None or now < self._busy_until
-        return PlannerProgress(Time.from_seconds(now), running, tuple(ids), self._last_done,
-                               self._last_discarded, self._paused, streaming)
+        last = self._snapshot
+        seq = last.seq if last is not None else 0
+        progress = PlannerProgress(Time.from_seconds(now), running, tuple(ids), self._last_done,
+                                   self._last_discarded, self._paused, streaming, self._started, seq)
+        if last is None or dataclasses.replace(progress, tm=last.tm) != last:
+            progress = dataclasses.replace(progress, seq=seq + 1)
+        self._snapshot = progress
+        return progress
 
     # ------------------------------------------------------------------ engine thread
 
@@ -343,9 +361,8 @@ class Streamer:
                     log.warning("servo FIFO nearly empty mid-motion (%.1f commands estimated, %.1f ms "
                                 "since the streamer's previous round)", depth, gap * 1e3)
                     last_late_log = now
-                same = (last_progress is not None
-                        and dataclasses.replace(progress, tm=last_progress.tm) == last_progress)
-                if not same or now - last_progress_at >= PROGRESS_PERIOD:
+                if (last_progress is None or progress.seq != last_progress.seq
+                        or now - last_progress_at >= PROGRESS_PERIOD):
                     self._publish_progress(progress)
                     last_progress, last_progress_at = progress, now
             except Exception:  # the engine must outlive a bug: log it, drop the motions, go on

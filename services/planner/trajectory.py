@@ -73,11 +73,15 @@ class TableMap:
         return out
 
 
+#: ``PlannedMotion.motion`` of a motion not queued (yet): the queue gives the ids (``Streamer.submit``).
+UNQUEUED = 0
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class PlannedMotion:
-    """One accepted motion: its id, its joint map, its nominal profile and samples."""
+    """One planned motion: its id, its joint map, its nominal profile and samples."""
 
-    motion: int  # id given by the command service
+    motion: int  # id given by the planner's queue, UNQUEUED before
     op: str  # IDL operation name
     path: JointMap
     profile: PathProfile  # nominal, from rest at s = 0 to rest at the end

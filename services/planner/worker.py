@@ -55,7 +55,7 @@ def _serve(conn: multiprocessing.connection.Connection, model: RobotModel, log_l
         except PlanRefused as exc:
             answer = ("refused", int(exc.code), exc.comment)
         except Exception as exc:  # a planner bug: refuse this motion, keep serving
-            log.exception("planning motion %d %s failed", req.motion, req.op)
+            log.exception("planning %s failed", req.op)
             answer = ("refused", int(ReturnCode.NG), f"internal error while planning {req.op}: {exc}")
         conn.send(answer)
 

@@ -6,10 +6,11 @@ to it, and fall back to what they know themselves when it does not answer
 within ``MONITOR_TIMEOUT`` (a missing monitor must not block the arm's
 interfaces for long).
 
-Both also keep the newest list they adopted and answer it on
-``Monitor/copy/<service>`` (:class:`AlarmListCopy`): a monitor that restarts
-takes the active alarms over from there (:func:`newest_copy`) instead of
-starting with an empty list while the arm is still stopped by them.
+The servo keeps the newest list it adopted (it must: those alarms keep the
+arm stopped while there is no monitor) and answers it on ``Monitor/copy``
+(:class:`AlarmListCopy`): a monitor that restarts takes the active alarms over
+from there (:func:`servo_copy`) instead of starting with an empty list while
+the arm is still stopped by them.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from jara_arm.schema.alarms import ALARM_LIST, MONITOR_OPERATIONS, AlarmList, fo
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
-from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.types import Alarm
 
 from .ask import Answer, Asker, Silence
@@ -43,14 +44,6 @@ def clear_reply(cleared: list[Alarm], kept: list[Alarm]) -> Reply:
             f"{format_code(a.code)} {a.description}" for a in kept)
             + (f" (cleared: {', '.join(format_code(a.code) for a in cleared)})" if cleared else ""))
     return ok("OK" if cleared else "OK: no active alarm")
-
-
-def is_newer(candidate: AlarmList, current: AlarmList | None) -> bool:
-    """Whether ``candidate`` replaces ``current``: a later monitor start, or a later list of it."""
-    if current is None:
-        return True
-    return ((candidate.started.to_seconds(), candidate.tm.to_seconds())
-            >= (current.started.to_seconds(), current.tm.to_seconds()))
 
 
 class MonitorLink:
@@ -100,14 +93,14 @@ class MonitorLink:
 
 
 class AlarmListCopy:
-    """``Monitor/copy/<service>``: answers the newest ``AlarmList`` this service adopted.
+    """``Monitor/copy``: answers the newest ``AlarmList`` the servo adopted.
 
-    Zenoh only queues the queries; the thread that owns the list answers them
-    with :meth:`answer` on its own turns (the servo loop, the command's watcher).
+    Zenoh only queues the queries; the thread that holds the list answers them
+    with :meth:`answer` on its own turns (the servo loop).
     """
 
-    def __init__(self, session: zenoh.Session, keys: ArmKeys, service: Service) -> None:
-        self._key = keys.alarm_copy(service)
+    def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
+        self._key = keys.alarm_copy
         self._entities = Entities()
         self._queryable = self._entities.enter_context(
             session.declare_queryable(self._key, zenoh.handlers.FifoChannel(16)))
@@ -127,19 +120,19 @@ class AlarmListCopy:
         self._entities.close()
 
 
-def newest_copy(session: zenoh.Session, keys: ArmKeys, timeout: float = MONITOR_TIMEOUT) -> AlarmList | None:
-    """The newest list the servo and the command service hold (see :class:`AlarmListCopy`); None if none."""
-    asker = Asker(session, keys.alarm_copy(), timeout, target=zenoh.QueryTarget.ALL)
-    newest: AlarmList | None = None
+def servo_copy(session: zenoh.Session, keys: ArmKeys, timeout: float = MONITOR_TIMEOUT) -> AlarmList | None:
+    """The list the servo holds (see :class:`AlarmListCopy`); None if it holds none or does not answer."""
+    asker = Asker(session, keys.alarm_copy, timeout)
     try:
-        for answer in asker.ask_all():
-            try:
-                candidate = codec.decode_message(ALARM_LIST, answer.payload, answer.encoding)
-            except WireError as exc:
-                log.error("ignored a malformed alarm list copy from %s: %s", answer.key, exc)
-                continue
-            if is_newer(candidate, newest):
-                newest = candidate
+        got = asker.ask(b"")
     finally:
         asker.close()
-    return newest
+    if isinstance(got, Silence):
+        log.info("no alarm list to take over: %s", got.why)
+        return None
+    try:
+        held: AlarmList = codec.decode_message(ALARM_LIST, got.payload, got.encoding)
+        return held
+    except WireError as exc:
+        log.error("ignored a malformed alarm list copy from the servo: %s", exc)
+        return None

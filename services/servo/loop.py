@@ -39,14 +39,14 @@ import zenoh
 from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
-from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmList, AlarmReport, format_code
+from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmList, AlarmReport, format_code, is_newer
 from jara_arm.schema.codes import AlarmCode, AlarmType, StateBit
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
-from jara_arm.services.runtime.monitor_link import AlarmListCopy, is_newer
+from jara_arm.services.runtime.monitor_link import AlarmListCopy
 from jara_arm.services.runtime.timing import (
     HEALTH_EVERY,
     SAME_HOST,
@@ -139,7 +139,7 @@ class ServoLoop:
         self._block_sub = enter(session.declare_subscriber(keys.pos_block, zenoh.handlers.FifoChannel(1 << 12)))
         self._estop_sub = enter(session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64)))
         self._alarms_sub = enter(session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256)))
-        self._alarm_copy = AlarmListCopy(session, keys, Service.SERVO)
+        self._alarm_copy = AlarmListCopy(session, keys)
         self._monitor = MonitorWatch(session, keys, health)  # nobody else can watch the watcher
         self._report_pub = enter(session.declare_publisher(keys.monitor_report, express=True))
         self._fb_pub = enter(session.declare_publisher(keys.pos_feedback, express=True))
