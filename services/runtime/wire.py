@@ -69,9 +69,12 @@ class Publication:
         """Publish ``value`` encoded as the key's encoding says."""
         self._publisher.put(codec.encode_message(kind, value, self.encoding))
 
+    def close(self) -> None:
+        self._publisher.undeclare()
+
     def __enter__(self) -> Publication:
         return self
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
-        self._publisher.undeclare()
+        self.close()
