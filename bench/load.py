@@ -27,9 +27,10 @@ from _system import client, launched_system, percentile  # noqa: E402
 from soak import ArmTally, drive  # noqa: E402
 
 from jara_arm.launcher.client import ArmClient  # noqa: E402
-from jara_arm.schema import codec, messages  # noqa: E402
+from jara_arm.schema import messages  # noqa: E402
 from jara_arm.schema.keys import ArmKeys  # noqa: E402
 from jara_arm.schema.operations import OP  # noqa: E402
+from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
 from jara_arm.services.runtime.zenoh_args import zenoh_config  # noqa: E402
 
 OPS = (OP.getState, OP.getFeedbackPosJoint, OP.getFeedbackPosCartesian)
@@ -70,12 +71,12 @@ def main() -> int:
     ctx = multiprocessing.get_context("spawn")
     with launched_system(arms=[(arm, args.robot)]) as port, client(port) as session:
         def on_alarm(s: zenoh.Sample) -> None:
-            ev = codec.decode_message(messages.ALARM_EVENT, s.payload.to_bytes())
+            ev = decode_sample(messages.ALARM_EVENT, s)
             if ev.event == "raised":
                 alarms.append(f"0x{ev.alarm.code:02x} {ev.alarm.type.value}: {ev.alarm.description}")
 
         def on_health(s: zenoh.Sample) -> None:
-            tally.add(codec.decode_message(messages.LOOP_HEALTH, s.payload.to_bytes()), time.monotonic())
+            tally.add(decode_sample(messages.LOOP_HEALTH, s), time.monotonic())
 
         keys = ArmKeys(arm)
         subs = [session.declare_subscriber(keys.alarm, on_alarm),

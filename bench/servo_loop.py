@@ -27,6 +27,7 @@ from jara_arm.schema import wire_types as w  # noqa: E402
 from jara_arm.schema.keys import ArmKeys  # noqa: E402
 from jara_arm.schema.operations import COMMON, OP  # noqa: E402
 from jara_arm.schema.types import Time, TimedJointPos  # noqa: E402
+from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
 
 
 def call(session: zenoh.Session, keys: ArmKeys, name: str):
@@ -69,7 +70,7 @@ def main() -> int:
         call(session, keys, OP.servoOFF)
         reports = []
         while (s := health.try_recv()) is not None:
-            reports.append(codec.decode_message(messages.LOOP_HEALTH, s.payload.to_bytes()))
+            reports.append(decode_sample(messages.LOOP_HEALTH, s))
     reports = reports[1:]  # the first window may include the start of streaming
     cycles = sum(r.cycles for r in reports)
     hist = np.sum([r.latenessHist for r in reports], axis=0)

@@ -41,6 +41,7 @@ from jara_arm.schema import codec, messages  # noqa: E402
 from jara_arm.schema.codes import ReturnCode, StateBit  # noqa: E402
 from jara_arm.schema.keys import ArmKeys, any_arm_alarm, any_arm_log, arm_of  # noqa: E402
 from jara_arm.schema.operations import OP  # noqa: E402
+from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
 
 SPEED = 50  # [%] of the rated joint speeds
 SWING = 0.4  # [rad or m] J1 and J2 swing between the two poses (scaled for prismatic axes)
@@ -123,7 +124,7 @@ def drive(arm: ArmClient, model_name: str, until: float, tally: ArmTally, stop: 
         sent = 0
         while time.monotonic() < until and not stop.is_set():
             if (s := states.try_recv()) is not None:
-                msg = codec.loads(s.payload.to_bytes())
+                msg = codec.loads(s.payload.to_bytes(), codec.Encoding.of(s.encoding))
                 queue_length = int(msg.get("queueLength", 0))
                 if msg["state"] & StateBit.ALARM or not msg["state"] & StateBit.SERVO_ON:
                     refused(f"state 0x{msg['state']:02x}: alarm or servo off")
@@ -171,17 +172,17 @@ def main() -> int:
         roots = [p for p in cpu.launchers() if f":{port}" in " ".join(cpu._cmdline(p))]
 
         def on_alarm(s: zenoh.Sample) -> None:
-            ev = codec.decode_message(messages.ALARM_EVENT, s.payload.to_bytes())
+            ev = decode_sample(messages.ALARM_EVENT, s)
             if ev.event == "raised":
                 alarms.append(f"{time.strftime('%H:%M:%S')} {arm_of(str(s.key_expr))} "
                               f"0x{ev.alarm.code:02x} {ev.alarm.type.value}: {ev.alarm.description}")
 
         def on_health(s: zenoh.Sample) -> None:
-            h = codec.decode_message(messages.LOOP_HEALTH, s.payload.to_bytes())
+            h = decode_sample(messages.LOOP_HEALTH, s)
             tallies[arm_of(str(s.key_expr))].add(h, time.monotonic() - t_start)
 
         def on_log(s: zenoh.Sample) -> None:
-            line, level = format_log(str(s.key_expr), s.payload.to_bytes())
+            line, level = format_log(str(s.key_expr), s.payload.to_bytes(), codec.Encoding.of(s.encoding))
             if level >= 30:
                 warnings.append(line)
                 if (m := _SILENCE.search(line)) is not None:

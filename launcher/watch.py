@@ -16,6 +16,7 @@ import zenoh
 
 from jara_arm.schema import codec, messages
 from jara_arm.schema.alarms import format_code
+from jara_arm.schema.encoding import Encoding
 from jara_arm.services.runtime.ask import Asker
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import (ArmKeys, Service, any_arm_alarm, any_arm_log, any_arm_monitor_common,
@@ -44,11 +45,11 @@ def level_number(name: str) -> int:
     return number if isinstance(number, int) else logging.INFO
 
 
-def format_log(key: str, payload: bytes) -> tuple[str, int]:
+def format_log(key: str, payload: bytes, encoding: Encoding) -> tuple[str, int]:
     """``(HH:MM:SS.mmm LEVEL arm/service: msg, level number)`` for one ``LogRecord``."""
     arm, service = parse_log(key)
     try:
-        rec = codec.decode_message(messages.LOG_RECORD, payload)
+        rec = codec.decode_message(messages.LOG_RECORD, payload, encoding)
     except JaraArmError as exc:
         return (f"{time.strftime('%H:%M:%S')} ?       {arm}/{service}: (undecodable log record: {exc})",
                 logging.WARNING)
@@ -60,11 +61,11 @@ def format_alarm(alarm: Alarm) -> str:
     return f"{format_code(alarm.code)} {alarm.type.value} {alarm.description}"
 
 
-def format_alarm_event(key: str, payload: bytes) -> str:
+def format_alarm_event(key: str, payload: bytes, encoding: Encoding) -> str:
     """``HH:MM:SS.mmm arm0 RAISED 0x001 FAULT ...`` for one ``AlarmEvent`` (receipt time)."""
     arm = arm_of(key)
     try:
-        event = codec.decode_message(messages.ALARM_EVENT, payload)
+        event = codec.decode_message(messages.ALARM_EVENT, payload, encoding)
     except JaraArmError as exc:
         return f"{_stamp(time.time())} {arm} ? (undecodable alarm event: {exc})"
     return f"{_stamp(time.time())} {arm} {event.event.upper():<7} {format_alarm(event.alarm)}"
@@ -77,8 +78,8 @@ class _Printer(abc.ABC):
         self._sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(_QUEUE))
 
     @abc.abstractmethod
-    def line(self, key: str, payload: bytes) -> str | None:
-        """The line to print for one sample, or None to skip it."""
+    def line(self, key: str, payload: bytes, encoding: Encoding) -> str | None:
+        """The line to print for one sample (``payload`` in ``encoding``, its label's), or None to skip it."""
 
     def drain(self) -> None:
         for _ in range(_PER_DRAIN):
@@ -86,7 +87,7 @@ class _Printer(abc.ABC):
             if sample is None:
                 return
             try:
-                line = self.line(str(sample.key_expr), sample.payload.to_bytes())
+                line = self.line(str(sample.key_expr), sample.payload.to_bytes(), Encoding.of(sample.encoding))
             except Exception as exc:  # anyone may publish here: never let it stop the caller
                 log.debug("unprintable sample on %s: %s", sample.key_expr, exc)
                 continue
@@ -104,16 +105,16 @@ class LogPrinter(_Printer):
         super().__init__(session, key)
         self._min = level_number(level)
 
-    def line(self, key: str, payload: bytes) -> str | None:
-        text, level = format_log(key, payload)
+    def line(self, key: str, payload: bytes, encoding: Encoding) -> str | None:
+        text, level = format_log(key, payload, encoding)
         return text if level >= self._min else None
 
 
 class AlarmPrinter(_Printer):
     """Alarm events on ``key`` (e.g. ``JARA_ARM/*/alarm``)."""
 
-    def line(self, key: str, payload: bytes) -> str | None:
-        return format_alarm_event(key, payload)
+    def line(self, key: str, payload: bytes, encoding: Encoding) -> str | None:
+        return format_alarm_event(key, payload, encoding)
 
 
 def print_active_alarms(session: zenoh.Session, arm: str | None, timeout: float = 2.0) -> int:

@@ -2,8 +2,9 @@
 
 Types (:mod:`.types`), codes (:mod:`.codes`), the operation table
 (:mod:`.operations`), key expressions (:mod:`.keys`), messages
-(:mod:`.messages`) and the codec (:mod:`.codec`). ``jara_arm.schema.json``
-beside this file is generated from them for clients in other languages.
+(:mod:`.messages`), the encodings (:mod:`.encoding`) and the codec
+(:mod:`.codec`). ``jara_arm.schema.json`` beside this file is generated from
+them for clients in other languages.
 """
 
 from .codec import Encoding, Reply, decode_reply, decode_request, encode_reply, encode_request

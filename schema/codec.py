@@ -1,7 +1,7 @@
 """Bytes on the wire <-> Python values, for requests, replies and messages.
 
-MessagePack by default; JSON when the Zenoh encoding is ``application/json``
-(then the reply is JSON too). Decoding is strict (WIRE.md "Bad input"): any
+MessagePack or JSON (:class:`~.encoding.Encoding` says which a payload is,
+and how a request's is told). Decoding is strict (WIRE.md "Bad input"): any
 defect raises :class:`WireError` naming the field, which a service answers
 with ``VALUE_ERR``.
 """
@@ -9,8 +9,6 @@ with ``VALUE_ERR``.
 from __future__ import annotations
 
 import dataclasses
-import enum
-import functools
 import json
 import math
 import time
@@ -20,24 +18,10 @@ from typing import Any
 import msgpack
 
 from .codes import ReturnCode
+from .encoding import Encoding as Encoding  # re-exported: the codec's argument
 from .errors import WireError
 from .operations import Operation
 from .wire_types import LONG, STRING, StructType
-
-
-class Encoding(enum.Enum):
-    MSGPACK = "application/msgpack"
-    JSON = "application/json"
-
-    @classmethod
-    def of(cls, zenoh_encoding: object | None) -> "Encoding":
-        """The codec for a Zenoh encoding: JSON for ``application/json``, else MessagePack."""
-        return _encoding_of(str(zenoh_encoding or ""))
-
-
-@functools.lru_cache(maxsize=64)
-def _encoding_of(text: str) -> Encoding:
-    return Encoding.JSON if text.split(";", 1)[0] in ("application/json", "text/json") else Encoding.MSGPACK
 
 
 def loads(payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
@@ -50,7 +34,14 @@ def loads(payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> Any:
             return json.loads(payload)
         return msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except Exception as exc:  # every parser error is the client's
-        raise WireError("payload", f"not valid {encoding.name}: {exc}") from None
+        hint = (" (it is a MessagePack map: label it application/msgpack, or leave the encoding unset)"
+                if encoding is Encoding.JSON and _is_msgpack_map(payload) else "")
+        raise WireError("payload", f"not valid {encoding.name}: {exc}{hint}") from None
+
+
+def _is_msgpack_map(payload: bytes) -> bool:
+    """Whether ``payload`` starts as a MessagePack map does: fixmap 0x80-0x8f, map 16 0xde, map 32 0xdf."""
+    return bool(payload) and (0x80 <= payload[0] <= 0x8F or payload[0] in (0xDE, 0xDF))
 
 
 def dumps(value: Any, encoding: Encoding = Encoding.MSGPACK) -> bytes:

@@ -1,18 +1,23 @@
 """Key expressions of the wire contract (WIRE.md), and the internal ones.
 
 Every key the system uses is built here, from one prefix, so that no other
-module spells a key expression by hand.
+module spells a key expression by hand; and here each declares the encoding of
+what it carries (:class:`KeyEncoding`), which publishers take with
+:func:`encoding_of`: JSON for what people watch (logs, alarms, state), so that
+any Zenoh tool reads it, MessagePack for the high-rate and internal streams.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import inspect
 import re
 from collections.abc import Callable
 from typing import TypeVar, cast
 
+from .encoding import Encoding
 from .errors import JaraArmError
 from .operations import Interface, operation
 
@@ -41,25 +46,41 @@ def check_arm(arm: str) -> str:
     return arm
 
 
+class KeyEncoding(enum.Enum):
+    """The encoding of what a key carries; the value is the key table's ``encoding`` column."""
+
+    JSON = Encoding.JSON.value  #: what people watch: any Zenoh tool reads it (``payload.to_string()``)
+    MSGPACK = Encoding.MSGPACK.value  #: the high-rate streams and the internal messages
+    AS_REQUEST = "as the request"  #: a queryable's replies: JSON to a JSON request, else MessagePack
+    NONE = "none"  #: no payload of its own (a liveliness token; any put)
+
+    @property
+    def encoding(self) -> Encoding | None:
+        """The codec of every payload on the key; None if the request decides, or there is none."""
+        return Encoding(self.value) if self in (KeyEncoding.JSON, KeyEncoding.MSGPACK) else None
+
+
 @dataclasses.dataclass(frozen=True)
 class KeyInfo:
-    """One row of the key table: what a key of :class:`ArmKeys` carries and who serves it."""
+    """One row of the key table: what a key of :class:`ArmKeys` carries, in which encoding, and who serves it."""
 
     key: str
     kind: str
     by: str
     payload: str
+    encoding: KeyEncoding
 
 
 _F = TypeVar("_F", bound=Callable[..., str])
 
 
-def _key(kind: str, by: str, payload: str, examples: tuple[tuple[object, ...], ...] = ((None,),)) -> Callable[[_F], _F]:
+def _key(kind: str, by: str, payload: str, encoding: KeyEncoding,
+         examples: tuple[tuple[object, ...], ...] = ((None,),)) -> Callable[[_F], _F]:
     """Marks an :class:`ArmKeys` member as a key of the table (:data:`KEY_TABLE`); ``examples``
     are the arguments (besides ``self``) of its rows, ``None`` standing for a ``<param>`` chunk."""
 
     def mark(fn: _F) -> _F:
-        fn.__key_rows__ = (kind, by, payload, examples)  # type: ignore[attr-defined]
+        fn.__key_rows__ = (kind, by, payload, encoding, examples)  # type: ignore[attr-defined]
         return fn
 
     return mark
@@ -79,14 +100,15 @@ class ArmKeys:
         return f"{PREFIX}/{self.arm}"
 
     # -- public contract (WIRE.md) -------------------------------------------------
-    @_key('queryable', 'command', 'request map → reply map', examples=((Interface.COMMON, None), (Interface.MIDDLE, None)))
+    @_key('queryable', 'command', 'request map → reply map', KeyEncoding.AS_REQUEST,
+          examples=((Interface.COMMON, None), (Interface.MIDDLE, None)))
     def interface(self, interface: Interface, op: str | None = None) -> str:
         """``Common/<op>`` or ``Middle/<op>`` (command service); ``op=None`` gives ``/*``."""
         if op is not None:
             operation(interface, op)
         return f"{self.root}/{interface.value}/{op or '*'}"
 
-    @_key('queryable', 'servo', 'request map → reply map')
+    @_key('queryable', 'servo', 'request map → reply map', KeyEncoding.AS_REQUEST)
     def servo_common(self, op: str | None = None) -> str:
         """``Servo/Common/<op>`` (servo service); ``op=None`` gives ``/*``."""
         if op is not None:
@@ -94,78 +116,81 @@ class ArmKeys:
         return f"{self.root}/Servo/{Interface.COMMON.value}/{op or '*'}"
 
     @property
-    @_key('subscriber', 'servo', '`TimedJointPos`, SyncFIFO')
+    @_key('subscriber', 'servo', '`TimedJointPos`, SyncFIFO', KeyEncoding.MSGPACK)
     def pos_cmd(self) -> str:
         """``TimedJointPos`` commands into the servo's SyncFIFO."""
         return f"{self.root}/Servo/posCmd"
 
     @property
-    @_key('subscriber (internal)', 'servo', "`PositionBlock` from the planner: several cycles' commands into the same SyncFIFO")
+    @_key('subscriber (internal)', 'servo', "`PositionBlock` from the planner: several cycles' commands into the same SyncFIFO",
+          KeyEncoding.MSGPACK)
     def pos_block(self) -> str:
         """``PositionBlock``: the planner's commands into the same SyncFIFO, a few cycles per message."""
         return f"{self.root}/Servo/posBlock"
 
     @property
-    @_key('publisher', 'servo', '`TimedJointPos`, every cycle')
+    @_key('publisher', 'servo', '`TimedJointPos`, every cycle', KeyEncoding.MSGPACK)
     def pos_feedback(self) -> str:
         """``TimedJointPos`` measured every cycle by the servo."""
         return f"{self.root}/Servo/posFeedback"
 
     @property
-    @_key('publisher', 'command', '`StateMessage` `{state, ...}` on every change')
+    @_key('publisher', 'command', '`StateMessage` `{state, ...}` on every change', KeyEncoding.JSON)
     def state(self) -> str:
         return f"{self.root}/state"
 
     @property
-    @_key('publisher', 'alarm monitor', '`AlarmEvent` `{event, alarm}`')
+    @_key('publisher', 'alarm monitor', '`AlarmEvent` `{event, alarm}`', KeyEncoding.JSON)
     def alarm(self) -> str:
         return f"{self.root}/alarm"
 
     @property
-    @_key('subscriber', 'every service that moves the arm', 'any put')
+    @_key('subscriber', 'every service that moves the arm', 'any put', KeyEncoding.NONE)
     def estop(self) -> str:
         return f"{self.root}/estop"
 
-    @_key('publisher', 'every service', '`LogRecord` `{t, level, service, msg, logger}`')
+    @_key('publisher', 'every service', '`LogRecord` `{t, level, service, msg, logger}`', KeyEncoding.JSON)
     def log(self, service: Service | None = None) -> str:
         return f"{self.root}/log/{service or '*'}"
 
-    @_key('liveliness token', 'every service', '—')
+    @_key('liveliness token', 'every service', '—', KeyEncoding.NONE)
     def alive(self, service: Service | None = None) -> str:
         return f"{self.root}/alive/{service or '*'}"
 
     # -- internal, between services (documented in the generated schema) ----------
     @property
-    @_key('publisher (internal)', 'servo', '`ServoStatus`, every 10 cycles (every 100, and on any change, while settled at rest)')
+    @_key('publisher (internal)', 'servo', '`ServoStatus`, every 10 cycles (every 100, and on any change, while settled at rest)',
+          KeyEncoding.MSGPACK)
     def servo_status(self) -> str:
         """``ServoStatus`` from the servo at a few hundred Hz: FIFO, velocities, efforts."""
         return f"{self.root}/Servo/status"
 
     @property
-    @_key('queryable (internal)', 'planner', '`MotionRequest` → `PlanReply`')
+    @_key('queryable (internal)', 'planner', '`MotionRequest` → `PlanReply`', KeyEncoding.AS_REQUEST)
     def planner_plan(self) -> str:
         """Queryable of the planner: ``MotionRequest`` -> ``PlanReply`` (schema.planner)."""
         return f"{self.root}/Planner/plan"
 
     @property
-    @_key('queryable (internal)', 'planner', '`ControlRequest` → `{id, comment}`')
+    @_key('queryable (internal)', 'planner', '`ControlRequest` → `ControlReply`', KeyEncoding.AS_REQUEST)
     def planner_control(self) -> str:
         """Queryable of the planner: ``ControlRequest`` -> ``{id, comment}``."""
         return f"{self.root}/Planner/control"
 
     @property
-    @_key('publisher (internal)', 'planner', '`PlannerProgress`')
+    @_key('publisher (internal)', 'planner', '`PlannerProgress`', KeyEncoding.MSGPACK)
     def planner_progress(self) -> str:
         """``PlannerProgress`` from the planner, on every change and at 10 Hz."""
         return f"{self.root}/Planner/progress"
 
     @property
-    @_key('publisher (internal)', 'servo', '`LoopHealth`, ~1 Hz')
+    @_key('publisher (internal)', 'servo', '`LoopHealth`, ~1 Hz', KeyEncoding.JSON)
     def servo_health(self) -> str:
         """``LoopHealth`` from the servo about once a second: lateness, overruns, underruns."""
         return f"{self.root}/Servo/health"
 
-    @_key('queryable (internal)', 'alarm monitor', '`getActiveAlarm`, `clearAlarms` (Common table); other operations NOT_IMPLEMENTED')
+    @_key('queryable (internal)', 'alarm monitor', '`getActiveAlarm`, `clearAlarms` (Common table); other operations NOT_IMPLEMENTED',
+          KeyEncoding.AS_REQUEST)
     def monitor_common(self, op: str | None = None) -> str:
         """``Monitor/Common/<op>`` (alarm monitor): ``getActiveAlarm`` and ``clearAlarms``."""
         if op is not None:
@@ -173,31 +198,35 @@ class ArmKeys:
         return f"{self.root}/Monitor/{Interface.COMMON.value}/{op or '*'}"
 
     @property
-    @_key('publisher + queryable (internal)', 'alarm monitor', '`AlarmList` on every change and at 2 Hz')
+    @_key('publisher + queryable (internal)', 'alarm monitor', '`AlarmList` on every change and at 2 Hz',
+          KeyEncoding.JSON)
     def monitor_alarms(self) -> str:
         """``AlarmList`` from the alarm monitor on every change and at 2 Hz; a get answers it too."""
         return f"{self.root}/Monitor/alarms"
 
     @property
-    @_key('subscriber (internal)', 'alarm monitor', '`AlarmReport` from the services: raised, or its cause gone')
+    @_key('subscriber (internal)', 'alarm monitor', '`AlarmReport` from the services: raised, or its cause gone',
+          KeyEncoding.MSGPACK)
     def monitor_report(self) -> str:
         """``AlarmReport`` from any service to the alarm monitor: raised, or its cause gone."""
         return f"{self.root}/Monitor/report"
 
     @property
-    @_key('queryable (internal)', 'servo', 'the `AlarmList` the servo holds: what a restarted monitor takes over')
+    @_key('queryable (internal)', 'servo', 'the `AlarmList` the servo holds: what a restarted monitor takes over',
+          KeyEncoding.MSGPACK)
     def alarm_copy(self) -> str:
         """Queryable of the servo: the monitor's newest ``AlarmList`` as the servo holds it (less
         what it cleared without a monitor), for an alarm monitor that restarts."""
         return f"{self.root}/Monitor/copy"
 
     @property
-    @_key('publisher (internal)', 'command', '`MotionSettings` on change and at 4 Hz')
+    @_key('publisher (internal)', 'command', '`MotionSettings` on change and at 4 Hz', KeyEncoding.JSON)
     def command_settings(self) -> str:
         """``MotionSettings`` from the command service on change and at 4 Hz."""
         return f"{self.root}/Command/settings"
 
-    @_key('publisher (internal)', 'every service', '`Heartbeat {seq, stuck}` every heartbeat period (100 ms same-host)')
+    @_key('publisher (internal)', 'every service', '`Heartbeat {seq, stuck}` every heartbeat period (100 ms same-host)',
+          KeyEncoding.MSGPACK)
     def heartbeat(self, service: Service | None = None) -> str:
         """``Heartbeat`` from every service every ``Health.heartbeat_period`` (services/runtime/timing.py); ``None`` gives ``/*``."""
         return f"{self.root}/heartbeat/{service or '*'}"
@@ -266,20 +295,46 @@ def _key_table() -> tuple[KeyInfo, ...]:
     sample = ArmKeys("ARM")
     for name, member in vars(ArmKeys).items():
         getter = member.fget if isinstance(member, property) else member
-        marked: tuple[str, str, str, tuple[tuple[object, ...], ...]] | None = getattr(getter, "__key_rows__", None)
+        marked: tuple[str, str, str, KeyEncoding, tuple[tuple[object, ...], ...]] | None = getattr(
+            getter, "__key_rows__", None)
         if marked is None:
             continue
         fn = cast(Callable[..., str], getter)  # marked, so _key took it: a Callable[..., str]
-        kind, by, payload, examples = marked
+        kind, by, payload, encoding, examples = marked
         params = [p for p in inspect.signature(fn).parameters if p != "self"]
         for args in examples:
             key: str = getattr(sample, name) if isinstance(member, property) else getattr(sample, name)(*args)
             if params and args[-1] is None:  # the wildcard chunk names its parameter
                 key = key[:-1] + f"<{params[-1]}>"
-            rows.append(KeyInfo(key.replace(f"{PREFIX}/ARM/", f"{PREFIX}/<arm>/", 1), kind, by, payload))
+            rows.append(KeyInfo(key.replace(f"{PREFIX}/ARM/", f"{PREFIX}/<arm>/", 1), kind, by, payload, encoding))
     return tuple(rows)
 
 
 #: The key-expression table of WIRE.md, generated from :class:`ArmKeys`: for the generated
 #: schema (``schema/generate.py``) and the README's table.
 KEY_TABLE: tuple[KeyInfo, ...] = _key_table()
+
+#: Each row's key as a pattern: ``<arm>`` and ``<param>`` chunks match any one chunk (``*`` too).
+_PATTERNS = tuple((re.compile(re.sub(r"<\w+>", "[^/]+", re.escape(row.key).replace(r"\<", "<").replace(r"\>", ">"))),
+                   row) for row in KEY_TABLE)
+
+
+@functools.lru_cache(maxsize=256)
+def key_info(key: str) -> KeyInfo:
+    """The row of :data:`KEY_TABLE` that ``key`` (built by :class:`ArmKeys`) is an instance of."""
+    for pattern, row in _PATTERNS:
+        if pattern.fullmatch(key):
+            return row
+    raise JaraArmError(f"not a key of the key table: {key!r}")
+
+
+def encoding_of(key: str) -> Encoding:
+    """The encoding every payload on ``key`` has (its publisher's, and its queryable's replies).
+
+    Raises JaraArmError for a key whose replies follow the request (:attr:`KeyEncoding.AS_REQUEST`)
+    or that carries no payload: a publisher of it is a mistake of ours.
+    """
+    row = key_info(key)
+    if row.encoding.encoding is None:
+        raise JaraArmError(f"{row.key} has no encoding of its own ({row.encoding.value})")
+    return row.encoding.encoding

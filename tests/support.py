@@ -146,12 +146,15 @@ class Client(ArmClient):
     """The package's client plus raw queries (arbitrary payloads, for bad-input tests)."""
 
     def raw(self, key: str, payload: bytes, *, json: bool = False, timeout: float = 10.0) -> Any:
-        """A query with an arbitrary payload; the reply map as decoded data."""
+        """A query with an arbitrary payload (labelled JSON if ``json``); the reply map as decoded data,
+        read by the reply's encoding label, which must be JSON for a request that is JSON."""
         enc = zenoh.Encoding.APPLICATION_JSON if json else None
         oks = [r.ok for r in self.session.get(key, payload=payload, encoding=enc, timeout=timeout)
                if r.ok is not None]
         assert len(oks) == 1, f"expected exactly one reply on {key}, got {len(oks)}"
-        return codec.loads(oks[0].payload.to_bytes(), Encoding.JSON if json else Encoding.MSGPACK)
+        encoding = Encoding.of(oks[0].encoding)
+        assert encoding is Encoding.of_request(payload, enc), f"{key} answered {encoding.name} to {payload!r}"
+        return codec.loads(oks[0].payload.to_bytes(), encoding)
 
 
 def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: str = "condition",

@@ -42,6 +42,7 @@ from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MOTION_SETTINGS
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
 from jara_arm.services.runtime.timing import SAME_HOST
+from jara_arm.services.runtime.wire import Publication, decode_sample
 from jara_arm.kinematics import Kinematics
 from jara_arm.services.servo.control import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
@@ -94,7 +95,7 @@ class System:
         # A callback that only stamps and stores: the receipt time is what is measured.
         self._event_sub = session.declare_subscriber(
             self.keys.alarm, lambda s: self.events.append(
-                (time.time(), codec.decode_message(messages.ALARM_EVENT, s.payload.to_bytes()))))
+                (time.time(), decode_sample(messages.ALARM_EVENT, s))))
         self._fb = session.declare_subscriber(self.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
         self._status = session.declare_subscriber(self.keys.servo_status, zenoh.handlers.FifoChannel(1 << 14))
         # Every command counts (SyncFIFO): block rather than drop one (a gap is a jump).
@@ -192,7 +193,7 @@ class System:
             s = self._settings.try_recv()
             if s is None:
                 return False
-            got = codec.decode_message(MOTION_SETTINGS, s.payload.to_bytes()).softLimitCartesian
+            got = decode_sample(MOTION_SETTINGS, s).softLimitCartesian
             return tuple((lim.upper, lim.lower) for lim in got) == want
 
         wait_until(published, timeout, 0.01, f"the command's settings with the Cartesian box {want}")
@@ -395,18 +396,17 @@ def wait_listening(arm: System, cli: Proc, service: Service, timeout: float = 30
     it is published again at each poll, the first ones may come before the subscriber.
     """
     probe = f"test probe from tests/test_alarms.py (pid {os.getpid()}): is `jara-arm logs` listening?"
-    pub = arm.session.declare_publisher(arm.keys.log(service))
+    pub = Publication(arm.session, arm.keys.log(service))  # as the services publish: JSON, labelled
     record = messages.LogRecord(0.0, "ERROR", service.value, probe, "tests")
     try:
         def printed() -> bool:
-            payload = codec.encode_message(messages.LOG_RECORD, dataclasses.replace(record, t=time.time()))
-            pub.put(payload)
+            pub.put_message(messages.LOG_RECORD, dataclasses.replace(record, t=time.time()))
             return any(probe in line for line in list(cli.lines))
 
         wait_until(printed, timeout, 0.2, "`jara-arm logs` to print a probe record",
                    explain=lambda: cli.output[-2000:])
     finally:
-        pub.undeclare()
+        pub.close()
 
 
 @contextlib.contextmanager
@@ -764,7 +764,7 @@ def test_monitor_list_and_alarm_events_agree(arm: System):
         arm.event(AlarmCode.EMERGENCY_STOP, since, AlarmEventKind.CLEARED)
         seen = []
         while (s := lists.try_recv()) is not None:
-            seen.append(codec.decode_message(ALARM_LIST, s.payload.to_bytes()))
+            seen.append(decode_sample(ALARM_LIST, s))
         codes = [tuple(a.code for a in lst.alarms) for lst in seen]
         assert (AlarmCode.EMERGENCY_STOP,) in codes and codes[-1] == (), codes
         assert all(b.tm.to_seconds() > a.tm.to_seconds() for a, b in zip(seen, seen[1:]))

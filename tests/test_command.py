@@ -12,6 +12,7 @@ Two rigs share one in-process Zenoh router, each started once for the module:
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import sys
 import threading
@@ -28,7 +29,7 @@ import zenoh
 from jara_arm.robots import robot
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
-from jara_arm.schema.codec import Reply
+from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys, Service, op_of
 from jara_arm.schema.operations import ALL, COMMON, MIDDLE, OP, Interface
@@ -535,13 +536,14 @@ def test_state_is_published_on_every_change(real: Rig):
         def states() -> list[dict]:
             out = []
             while (s := sub.try_recv()) is not None:
-                out.append(codec.loads(s.payload.to_bytes()))
+                assert str(s.encoding) == "application/json", s.encoding  # what people watch: JSON
+                out.append(json.loads(s.payload.to_string()))
             return out
 
         seen: list[dict] = []
         wait_until(lambda: seen.extend(states()) or [m["state"] for m in seen][-2:] == [0, StateBit.SERVO_ON],
                    5, what=f"state 0 then 1 published; got {seen}")
-        decoded = codec.decode_message(messages.STATE_MESSAGE, codec.dumps(seen[-1]))
+        decoded = codec.decode_message(messages.STATE_MESSAGE, codec.dumps(seen[-1], Encoding.JSON), Encoding.JSON)
         assert decoded.state == StateBit.SERVO_ON
         assert seen[-1]["queueLength"] == 0 and seen[-1]["queueCapacity"] == 32
     finally:

@@ -23,7 +23,7 @@ import zenoh
 
 from jara_arm.kinematics import Kinematics, hg_to_se3
 from jara_arm.robots import RobotModel
-from jara_arm.schema import codec, messages
+from jara_arm.schema import messages
 from jara_arm.schema.alarms import (
     ALARM_LIST,
     ALARM_REPORT,
@@ -41,6 +41,7 @@ from jara_arm.schema.types import Alarm, Time
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.timing import MONITOR_POLL, SAME_HOST, Health
+from jara_arm.services.runtime.wire import Publication, decode_sample, reply_message
 
 from .book import AlarmBook
 from .detectors import (
@@ -104,8 +105,8 @@ class Monitor:
         self._status = enter(session.declare_subscriber(keys.servo_status, fifo(256)))
         self._heartbeats = enter(session.declare_subscriber(keys.heartbeat(), fifo(1024)))
         self._settings_sub = enter(session.declare_subscriber(keys.command_settings, ring(1)))
-        self._event_pub = enter(session.declare_publisher(keys.alarm, express=True))
-        self._list_pub = enter(session.declare_publisher(keys.monitor_alarms, express=True))
+        self._event_pub = enter(Publication(session, keys.alarm, express=True))
+        self._list_pub = enter(Publication(session, keys.monitor_alarms, express=True))
         self._list_q = enter(session.declare_queryable(keys.monitor_alarms, fifo(64)))
         self._reactions = Reactions(session, keys)
         self._calls: collections.deque[tuple[Callable[[], object], concurrent.futures.Future]] = \
@@ -178,7 +179,7 @@ class Monitor:
         self._drain_liveliness(now)
         while (s := self._reports.try_recv()) is not None:
             try:
-                report = codec.decode_message(ALARM_REPORT, s.payload.to_bytes())
+                report = decode_sample(ALARM_REPORT, s)
             except WireError as exc:
                 log.error("ignored a malformed alarm report: %s", exc)
                 continue
@@ -187,12 +188,12 @@ class Monitor:
         self._drain_heartbeats(now)
         while (s := self._status.try_recv()) is not None:
             try:
-                self._on_status(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
+                self._on_status(decode_sample(messages.SERVO_STATUS, s))
             except WireError as exc:
                 log.error("ignored a malformed servo status: %s", exc)
         if (s := self._settings_sub.try_recv()) is not None:
             try:
-                self._on_settings(codec.decode_message(MOTION_SETTINGS, s.payload.to_bytes()))
+                self._on_settings(decode_sample(MOTION_SETTINGS, s))
             except WireError as exc:
                 log.error("ignored malformed command settings: %s", exc)
         if now >= self._judge_after:
@@ -205,11 +206,11 @@ class Monitor:
                 fut.set_exception(exc)
         while (query := self._list_q.try_recv()) is not None:
             try:
-                query.reply(self.keys.monitor_alarms, codec.encode_message(ALARM_LIST, self.alarm_list()))
+                reply_message(query, self.keys.monitor_alarms, ALARM_LIST, self.alarm_list())
             finally:
                 query.drop()
         if self._dirty or now - self._list_at >= LIST_PERIOD:
-            self._list_pub.put(codec.encode_message(ALARM_LIST, self.alarm_list()))
+            self._list_pub.put_message(ALARM_LIST, self.alarm_list())
             self._dirty = False
             self._list_at = now
 
@@ -244,7 +245,7 @@ class Monitor:
             if watch is None:
                 continue
             try:
-                beat = codec.decode_message(HEARTBEAT, s.payload.to_bytes())
+                beat = decode_sample(HEARTBEAT, s)
             except WireError as exc:
                 log.error("ignored a malformed heartbeat of the %s: %s", name, exc)
                 continue
@@ -351,12 +352,12 @@ class Monitor:
         for alarm in kept:
             log.info("alarm %s kept: its cause is still present", format_code(alarm.code))
         if cleared:  # the list first, so that the caller's next reads already see it
-            self._list_pub.put(codec.encode_message(ALARM_LIST, self.alarm_list()))
+            self._list_pub.put_message(ALARM_LIST, self.alarm_list())
             self._list_at = time.monotonic()
         return cleared, kept
 
     def _publish_event(self, kind: AlarmEventKind, alarm: Alarm) -> None:
-        self._event_pub.put(codec.encode_message(messages.ALARM_EVENT, messages.AlarmEvent(kind.value, alarm)))
+        self._event_pub.put_message(messages.ALARM_EVENT, messages.AlarmEvent(kind.value, alarm))
         self._dirty = True
 
     def alarm_list(self) -> AlarmList:

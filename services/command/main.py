@@ -9,11 +9,13 @@ import argparse
 import logging
 
 from jara_arm.schema import codec
+from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.keys import Service
 from jara_arm.schema.messages import STATE_MESSAGE, StateMessage
 from jara_arm.schema.operations import COMMON, MIDDLE, Interface
 from jara_arm.services.runtime.monitor_link import MonitorLink
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
+from jara_arm.services.runtime.wire import Publication
 
 from .cartesian import CartesianFeedback, reach
 from .common import CommandCommon
@@ -29,11 +31,11 @@ from .watch import Watcher
 log = logging.getLogger("jara_arm.command")
 
 
-def state_payload(view: StateView) -> bytes:
+def state_payload(view: StateView, encoding: Encoding) -> bytes:
     """``StateMessage`` plus the queue length and capacity (extra members are allowed)."""
     body = STATE_MESSAGE.encode(StateMessage(view.bits))
     body.update(queueLength=view.queue_length, queueCapacity=view.capacity)
-    return codec.dumps(body)
+    return codec.dumps(body, encoding)
 
 
 #: SCHED_FIFO priority of the heartbeat thread and Zenoh's threads, the command's own work
@@ -63,8 +65,8 @@ class CommandService(ArmService):
 
     def start(self, ctx: ServiceContext) -> None:
         session, keys, robot, opts = ctx.session, ctx.keys, ctx.model, ctx.options
-        state_pub = ctx.enter(session.declare_publisher(keys.state))
-        tracker = StateTracker(opts.queue_capacity, lambda v: state_pub.put(state_payload(v)))
+        state_pub = ctx.enter(Publication(session, keys.state))
+        tracker = StateTracker(opts.queue_capacity, lambda v: state_pub.put(state_payload(v, state_pub.encoding)))
         watcher = Watcher(session, keys, tracker, ctx.heartbeat().pulse("the state watcher"))
         watcher.start()
         ctx.closing(watcher.stop)

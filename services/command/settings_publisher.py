@@ -1,4 +1,4 @@
-"""``Command/settings``: the command's settings, for the alarm monitor.
+"""``Command/settings``: the command's settings, for the alarm monitor (and people: it is JSON).
 
 The alarm monitor checks the control point against the Cartesian soft limits
 with the command's base offset and control point offset, so it needs the
@@ -14,10 +14,10 @@ import time
 import zenoh
 
 from jara_arm.robots import RobotModel
-from jara_arm.schema import codec
 from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.planner import MOTION_SETTINGS
 from jara_arm.services.runtime.entities import Entities
+from jara_arm.services.runtime.wire import Publication
 
 from .settings import Settings
 from .state import StateTracker
@@ -32,7 +32,7 @@ class SettingsPublisher:
     def __init__(self, session: zenoh.Session, keys: ArmKeys, tracker: StateTracker, robot: RobotModel,
                  settings: Settings) -> None:
         self._entities = Entities()
-        self._pub = self._entities.enter_context(session.declare_publisher(keys.command_settings))
+        self._pub = self._entities.enter_context(Publication(session, keys.command_settings))
         self._tracker = tracker
         self._robot = robot
         self._lock = threading.Lock()
@@ -54,7 +54,7 @@ class SettingsPublisher:
     def _put(self) -> None:
         # The joint soft limits are the servo's (from its status), the model's until it spoke.
         limits = self._tracker.soft_limit_joint or self._robot.hard_limits
-        self._pub.put(codec.encode_message(MOTION_SETTINGS, self._settings.snapshot(limits)))
+        self._pub.put_message(MOTION_SETTINGS, self._settings.snapshot(limits))
         self._at = time.monotonic()
 
     def close(self) -> None:

@@ -13,7 +13,7 @@ import threading
 
 import zenoh
 
-from jara_arm.schema import codec, messages
+from jara_arm.schema import messages
 from jara_arm.schema.alarms import ALARM_LIST
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
@@ -21,6 +21,7 @@ from jara_arm.schema.planner import PLANNER_PROGRESS
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.timing import WATCHER_POLL
+from jara_arm.services.runtime.wire import decode_sample
 
 from .state import StateTracker
 
@@ -86,17 +87,17 @@ class Watcher:
                 self._tracker.on_monitor_gone()
         while (s := self._alarms.try_recv()) is not None:
             try:
-                self._tracker.on_alarms(codec.decode_message(ALARM_LIST, s.payload.to_bytes()))
+                self._tracker.on_alarms(decode_sample(ALARM_LIST, s))
             except WireError as exc:
                 self._malformed("Monitor/alarms", exc)
         while (s := self._progress.try_recv()) is not None:
             try:
-                self._tracker.on_progress(codec.decode_message(PLANNER_PROGRESS, s.payload.to_bytes()))
+                self._tracker.on_progress(decode_sample(PLANNER_PROGRESS, s))
             except WireError as exc:
                 self._malformed("Planner/progress", exc)
         while (s := self._status.try_recv()) is not None:
             try:
-                self._tracker.on_status(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
+                self._tracker.on_status(decode_sample(messages.SERVO_STATUS, s))
             except WireError as exc:
                 self._malformed("Servo/status", exc)
         self._tracker.tick()

@@ -45,6 +45,7 @@ from jara_arm.schema.planner import (
     PlanReply,
 )
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
+from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .planning import PlanRefused
 from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, Streamer
@@ -52,8 +53,6 @@ from .worker import PlanningProcess
 
 log = logging.getLogger("jara_arm.planner")
 
-_ZENOH_ENCODING = {Encoding.JSON: zenoh.Encoding.APPLICATION_JSON,
-                   Encoding.MSGPACK: zenoh.Encoding("application/msgpack")}
 #: Times a motion is re-planned when a stop or abort moved the queue's end while it was planned.
 _REPLAN = 3
 #: Other threads hand the GIL to the streamer this often [s] (Python's default is 5 ms).
@@ -68,10 +67,11 @@ class PlannerService:
         self.model = model = ctx.model
         self.planner = planner
         # Every command counts (SyncFIFO): block rather than drop when the link is congested.
-        self._cmd_pub = ctx.enter(session.declare_publisher(keys.pos_block, express=True,
-                                                            congestion_control=zenoh.CongestionControl.BLOCK,
-                                                            priority=zenoh.Priority.REAL_TIME))
-        self._progress_pub = ctx.enter(session.declare_publisher(keys.planner_progress, express=True))
+        # The blocks are MessagePack built by hand (messages.position_block_payload), fast.
+        self._cmd_pub = ctx.enter(Publication(session, keys.pos_block, Encoding.MSGPACK, express=True,
+                                              congestion_control=zenoh.CongestionControl.BLOCK,
+                                              priority=zenoh.Priority.REAL_TIME))
+        self._progress_pub = ctx.enter(Publication(session, keys.planner_progress, express=True))
         self._status_sub = ctx.enter(session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(1)))
         self.streamer = Streamer(model.dof, model.cmd_cycle, self._cmd_pub.put, self._put_progress,
                                  self._poll_status, lead=lead, realtime_priority=ctx.realtime_priority,
@@ -91,13 +91,13 @@ class PlannerService:
         if sample is None:
             return None
         try:
-            return codec.decode_message(messages.SERVO_STATUS, sample.payload.to_bytes())
+            return decode_sample(messages.SERVO_STATUS, sample)
         except WireError as exc:
             log.warning("ignored a malformed servo status: %s", exc)
             return None
 
     def _put_progress(self, progress: PlannerProgress) -> None:
-        self._progress_pub.put(codec.encode_message(PLANNER_PROGRESS, progress))
+        self._progress_pub.put_message(PLANNER_PROGRESS, progress)
 
     # ------------------------------------------------------------------ queries
 

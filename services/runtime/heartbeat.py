@@ -28,7 +28,7 @@ import time
 
 import zenoh
 
-from jara_arm.schema import alarms, codec
+from jara_arm.schema import alarms
 from jara_arm.schema.alarms import HEARTBEAT
 from jara_arm.schema.codes import ULONG_MAX
 from jara_arm.schema.keys import ArmKeys, Service
@@ -36,6 +36,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from .entities import Entities
 from .realtime import realtime_thread
 from .timing import SAME_HOST, Health
+from .wire import Publication
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +76,7 @@ class Heartbeat:
         self._priority = priority
         self._pulses: list[Pulse] = []
         self._entities = Entities()
-        self._pub = self._entities.enter_context(session.declare_publisher(keys.heartbeat(service), express=True))
+        self._pub = self._entities.enter_context(Publication(session, keys.heartbeat(service), express=True))
         self._stop = threading.Event()
         self._seq = 0
         self._left = False
@@ -98,7 +99,7 @@ class Heartbeat:
             return
         self._left = True
         try:
-            self._pub.put(codec.encode_message(HEARTBEAT, alarms.Heartbeat(self._seq, (), leaving=True)))
+            self._pub.put_message(HEARTBEAT, alarms.Heartbeat(self._seq, (), leaving=True))
         except zenoh.ZError as exc:
             log.debug("leaving beat not sent: %s", exc)
             return
@@ -136,7 +137,7 @@ class Heartbeat:
             last = now
             try:
                 beat = alarms.Heartbeat(self._seq, self.stuck(now, steady_since))
-                self._pub.put(codec.encode_message(HEARTBEAT, beat))
+                self._pub.put_message(HEARTBEAT, beat)
             except zenoh.ZError as exc:  # the session is closing
                 log.debug("heartbeat not sent: %s", exc)
             except Exception:  # a bug here must not silence the service: say it, beat on

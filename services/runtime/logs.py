@@ -1,7 +1,8 @@
 """Python logging to stderr and to ``JARA_ARM/<arm>/log/<service>``.
 
 ``emit`` only appends to a deque; a thread of its own publishes, so that a log
-call never blocks a Zenoh callback or the servo loop.
+call never blocks a Zenoh callback or the servo loop. The records are JSON
+(``schema/keys.py``): any Zenoh tool prints them.
 """
 
 from __future__ import annotations
@@ -13,10 +14,11 @@ import threading
 
 import zenoh
 
-from jara_arm.schema import codec, messages
+from jara_arm.schema import messages
 from jara_arm.schema.keys import ArmKeys, Service
 
 from .entities import Entities
+from .wire import Publication
 
 FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
 _QUEUE_LIMIT = 10_000  # records kept while Zenoh is slow; the oldest are dropped
@@ -53,10 +55,10 @@ class ZenohLogHandler(logging.Handler):
         self._closed = False
         self._thread = threading.Thread(target=self._run, name="log-publisher", daemon=True)
         # looked up by a record's arm, None when it names none (then the main publisher)
-        self._by_arm: dict[str | None, zenoh.Publisher] = {
-            k.arm: self._entities.enter_context(session.declare_publisher(k.log(service)))
+        self._by_arm: dict[str | None, Publication] = {
+            k.arm: self._entities.enter_context(Publication(session, k.log(service)))
             for k in also if k.arm != keys.arm}
-        self._publisher = self._entities.enter_context(session.declare_publisher(keys.log(service)))
+        self._publisher = self._entities.enter_context(Publication(session, keys.log(service)))
         self._thread.start()
 
     def emit(self, record: logging.LogRecord) -> None:
@@ -77,9 +79,9 @@ class ZenohLogHandler(logging.Handler):
             msg = record.getMessage()
             if record.exc_info:
                 msg += "\n" + logging.Formatter().formatException(record.exc_info)
-            payload = codec.encode_message(messages.LOG_RECORD, messages.LogRecord(
-                record.created, record.levelname, self._service.value, msg, record.name))
-            self._by_arm.get(getattr(record, "arm", None), self._publisher).put(payload)
+            self._by_arm.get(getattr(record, "arm", None), self._publisher).put_message(
+                messages.LOG_RECORD, messages.LogRecord(record.created, record.levelname, self._service.value, msg,
+                                                        record.name))
         except Exception:  # a log that cannot be published must not take the service down
             pass
 

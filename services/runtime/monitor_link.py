@@ -32,6 +32,7 @@ from .ask import Answer, Asker, Silence
 from .entities import Entities
 from .rpc import ok, refuse
 from .timing import MONITOR_TIMEOUT
+from .wire import reply_message
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +111,7 @@ class AlarmListCopy:
         while (query := self._queryable.try_recv()) is not None:
             try:
                 if (alarms := current()) is not None:
-                    query.reply(self._key, codec.encode_message(ALARM_LIST, alarms))
+                    reply_message(query, self._key, ALARM_LIST, alarms)
             except zenoh.ZError as exc:
                 log.warning("could not answer %s: %s", self._key, exc)
             finally:

@@ -26,11 +26,10 @@ from jara_arm.schema.operations import Operation
 
 from .entities import Entities
 from .timing import DEADLINE_GRACE
+from .wire import label
 
 log = logging.getLogger(__name__)
 
-_ZENOH_ENCODING = {Encoding.JSON: zenoh.Encoding.APPLICATION_JSON,
-                   Encoding.MSGPACK: zenoh.Encoding("application/msgpack")}
 _CHANNEL_CAPACITY = 1024
 
 
@@ -76,7 +75,8 @@ def answer(op: Operation | None, payload: bytes, encoding: Encoding, handler: ob
     return reply
 
 
-#: ``(query's key, payload, encoding) -> (reply's key, reply body)``: one endpoint's answer.
+#: ``(query's key, payload, encoding) -> (reply's key, reply body)``: one endpoint's answer, in
+#: the request's encoding (``Encoding.of_request``), which the reply is labelled with.
 Answer = Callable[[str, bytes, Encoding], tuple[str, bytes]]
 
 
@@ -108,10 +108,11 @@ class QueryServer:
                     log.warning("dropped %s unanswered: its requester gave up %.0f ms ago (this service was "
                                 "held up, or the clocks differ)", query.key_expr, late * 1e3)
                     continue
-                encoding = Encoding.of(query.encoding)
                 payload = query.payload.to_bytes() if query.payload is not None else b""
+                # JSON text is JSON whatever its label: generic tools send it unlabelled
+                encoding = Encoding.of_request(payload, query.encoding)
                 key, body = self._answer(str(query.key_expr), payload, encoding)
-                query.reply(key, body, encoding=_ZENOH_ENCODING[encoding])
+                query.reply(key, body, encoding=label(encoding))
             except Exception:
                 log.exception("could not reply to %s", query.key_expr)
             finally:

@@ -41,6 +41,7 @@ from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmList, AlarmReport, format_code, is_newer
 from jara_arm.schema.codes import AlarmCode, AlarmType, StateBit
+from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import Alarm, LimitValue, Time
@@ -55,6 +56,7 @@ from jara_arm.services.runtime.timing import (
     UNDERRUN_GRACE,
     Health,
 )
+from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .control import RAN_DRY, REST_SPEED, STOPPED, ControlLaw, Refusal
 from .monitor_watch import MonitorWatch
@@ -141,13 +143,14 @@ class ServoLoop:
         self._alarms_sub = enter(session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256)))
         self._alarm_copy = AlarmListCopy(session, keys)
         self._monitor = MonitorWatch(session, keys, health)  # nobody else can watch the watcher
-        self._report_pub = enter(session.declare_publisher(keys.monitor_report, express=True))
-        self._fb_pub = enter(session.declare_publisher(keys.pos_feedback, express=True))
+        self._report_pub = enter(Publication(session, keys.monitor_report, express=True))
+        # The feedback and the status are MessagePack built by hand (messages.*_payload), fast.
+        self._fb_pub = enter(Publication(session, keys.pos_feedback, Encoding.MSGPACK, express=True))
         # The 1 kHz feedback is encoded only while someone subscribes (none of our services do).
-        self._fb_matching = enter(self._fb_pub.declare_matching_listener(zenoh.handlers.FifoChannel(64)))
-        self._fb_wanted = self._fb_pub.matching_status.matching
-        self._status_pub = enter(session.declare_publisher(keys.servo_status, express=True))
-        self._health_pub = enter(session.declare_publisher(keys.servo_health))
+        self._fb_matching = enter(self._fb_pub.publisher.declare_matching_listener(zenoh.handlers.FifoChannel(64)))
+        self._fb_wanted = self._fb_pub.publisher.matching_status.matching
+        self._status_pub = enter(Publication(session, keys.servo_status, Encoding.MSGPACK, express=True))
+        self._health_pub = enter(Publication(session, keys.servo_health))
         self._stats = _Stats()
         self._period_ns = model.cmd_cycle_ms * 1_000_000
         self._tm_ns = 0  # [ns] wall-clock time the newest feedback sample stands for
@@ -237,7 +240,7 @@ class ServoLoop:
             self.emergency_stop()
         while (sample := self._alarms_sub.try_recv()) is not None:
             try:
-                self.adopt_monitor_list(codec.decode_message(ALARM_LIST, sample.payload.to_bytes()))
+                self.adopt_monitor_list(decode_sample(ALARM_LIST, sample))
             except WireError as exc:
                 self._log.error("ignored a malformed alarm list from the monitor: %s", exc)
         self._alarm_copy.answer(self._alarm_list_held)
@@ -365,7 +368,7 @@ class ServoLoop:
         report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value)
         latch.reported_at = time.monotonic()
         try:
-            self._report_pub.put(codec.encode_message(ALARM_REPORT, report))
+            self._report_pub.put_message(ALARM_REPORT, report)
         except Exception as exc:  # a report that cannot be sent is sent again later
             self._log.warning("could not report alarm %s to the monitor: %s", format_code(latch.alarm.code), exc)
 
@@ -509,7 +512,7 @@ class ServoLoop:
             Time.now(), len(st.lateness), self.dt, float(np.percentile(lat, 50)),
             float(np.percentile(lat, 99)), float(lat.max()), st.late, st.overruns,
             len(self.law.fifo), st.underruns, tuple(int(c) for c in hist))
-        self._health_pub.put(codec.encode_message(messages.LOOP_HEALTH, msg))
+        self._health_pub.put_message(messages.LOOP_HEALTH, msg)
         if st.waits:
             self._log.info("servo loop: waited %d cycle(s) mid-motion for late commands (simulated "
                      "time stood still) instead of running dry", st.waits)

@@ -17,7 +17,6 @@ import time
 
 import zenoh
 
-from jara_arm.schema import codec
 from jara_arm.schema.alarms import HEARTBEAT
 from jara_arm.schema.codes import AlarmCode
 from jara_arm.schema.errors import WireError
@@ -25,6 +24,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import ServiceWatch
 from jara_arm.services.runtime.timing import Health
+from jara_arm.services.runtime.wire import decode_sample
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,7 +68,7 @@ class MonitorWatch:
                 found.append(Finding(AlarmCode.MONITOR_LOST, f"the alarm monitor is gone: {why}"))
         if (sample := self._beats.try_recv()) is not None:
             try:
-                beat = codec.decode_message(HEARTBEAT, sample.payload.to_bytes())
+                beat = decode_sample(HEARTBEAT, sample)
                 gap = watch.heard(now, beat.stuck, beat.leaving)
             except WireError as exc:
                 found.append(Finding(error=f"ignored a malformed heartbeat of the alarm monitor: {exc}"))
