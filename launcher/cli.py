@@ -175,7 +175,7 @@ class _Parsers:
             description="Exit 0 as soon as the condition holds, 1 with what was seen last if it did not "
             "within the timeout. Conditions: " + "; ".join(f"{c.value}: {h}" for c, h in CONDITION_HELP.items()))
         _arm(self.wait)
-        self.wait.add_argument("condition", type=Condition, choices=list(Condition), metavar="CONDITION",
+        self.wait.add_argument("condition", choices=[c.value for c in Condition], metavar="CONDITION",
                                help=", ".join(c.value for c in Condition))
         self.wait.add_argument("--timeout", type=_positive_float, default=60.0, metavar="S",
                                help="give up after S seconds (default: 60)")
@@ -351,7 +351,7 @@ def _tool(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             if name == "state":
                 return run_state(client, signals.stop, sys.stdout, once=args.once, period=args.period,
                                  tty=sys.stdout.isatty())
-            return run_wait(client, args.condition, args.timeout, args.poll, signals.stop, sys.stderr)
+            return run_wait(client, Condition(args.condition), args.timeout, args.poll, signals.stop, sys.stderr)
         except ClientError as exc:
             print(f"jara-arm {name}: {exc}", file=sys.stderr)
             return 1

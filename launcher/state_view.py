@@ -80,9 +80,14 @@ def _seconds(s: float) -> str:
     return f"{s * 1e3:.1f} ms" if s < 1.0 else f"{s:.1f} s"
 
 
+def _num(x: float) -> str:
+    """``+0.1235``; a value that rounds to zero is ``+0.0000``, never ``-0.0000``."""
+    return f"{round(float(x), 4) + 0.0:+.4f}"
+
+
 def _joints(joints: Sequence[float], axis_num: int | None) -> str:
     names = [f"J{i + 1}" if axis_num is None or i < axis_num else "grip" for i in range(len(joints))]
-    return "  ".join(f"{n} {q:+.4f}" for n, q in zip(names, joints))
+    return "  ".join(f"{n} {_num(q)}" for n, q in zip(names, joints))
 
 
 def render(s: Snapshot) -> list[str]:
@@ -96,10 +101,8 @@ def render(s: Snapshot) -> list[str]:
         lines.append("queue     ? (published on the next state change)")
     lines.append(f"joints    [rad or m]  {_joints(s.joints, s.axis_num) if s.joints is not None else '?'}")
     if s.pose is not None:
-        x, y, z = (float(v) for v in s.pose[:, 3])
-        roll, pitch, yaw = rpy(s.pose[:, :3])
-        lines.append(f"pose      xyz [m] {x:+.4f} {y:+.4f} {z:+.4f}   "
-                     f"rpy [rad] {roll:+.4f} {pitch:+.4f} {yaw:+.4f}")
+        lines.append(f"pose      xyz [m] {' '.join(_num(v) for v in s.pose[:, 3])}   "
+                     f"rpy [rad] {' '.join(_num(v) for v in rpy(s.pose[:, :3]))}")
     else:
         lines.append("pose      ?")
     if s.alarms is None:
