@@ -34,7 +34,7 @@ from .wait import alive_services
 
 CLEAR = "\x1b[H\x1b[J"  #: cursor home, erase below: the ANSI redraw of a terminal
 _RING = 64  #: publications held between two refreshes, per key
-#: [s] a ``--once`` view waits this long for the servo's first loop report (published about 1 Hz; a busy machine may be late).
+#: [s] a ``--once`` view waits this long for the servo's first loop report (about 1 Hz; later on a busy machine).
 ONCE_HEALTH_WAIT = 2.5
 
 
