@@ -6,9 +6,16 @@
     jara-arm router [--listen ENDPOINT]... [--connect ENDPOINT]... [--config FILE] [--multicast]
     jara-arm logs [--arm ID] [--service NAME] [--level LEVEL] [Zenoh options]
     jara-arm alarms [--arm ID] [Zenoh options]
+    jara-arm call [--arm ID] [--servo] [--timeout S] OP [JSON] [Zenoh options]
+    jara-arm echo [--arm ID] [--rate HZ] [--once | --count N] [--timeout S] [--show-key] KEY [Zenoh options]
+    jara-arm state [--arm ID] [--once] [--period S] [Zenoh options]
+    jara-arm wait [--arm ID] [--timeout S] [--poll S] CONDITION [Zenoh options]
+    jara-arm completion bash
 
 ``logs`` and ``alarms`` join any Zenoh network (by default as a client of
-tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM.
+tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM; ``call``,
+``echo``, ``state`` and ``wait`` join it the same way (``launcher/call.py``,
+``echo.py``, ``state_view.py``, ``wait.py``).
 
 A user mistake (unknown robot, bad arm id, a port already in use…) prints one
 readable message and exits with status 2.
@@ -34,8 +41,13 @@ from .services import NAMES, SERVICES, spec
 from .supervisor import StopSignals
 from .up import ArmSpec, UpSettings, run_up
 from .watch import LOG_LEVELS as RECORD_LEVELS
+from .call import CallError, parse_call, run_call
 from .client import ArmClient, ClientError
+from .completion import SHELLS, bash_script
 from .demo import run_demo
+from .echo import EchoKeyError, EchoSettings, echo_key, echo_keys, run_echo
+from .state_view import run_state
+from .wait import CONDITION_HELP, Condition, run_wait
 from .watch import run_alarms, run_logs
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
@@ -112,6 +124,79 @@ class _Parsers:
                                help=f"the arm to drive (default: {DEFAULT_ARM})")
         _client_zenoh_arguments(self.demo)
 
+        self.call = sub.add_parser(
+            "call", help="call any operation by its IDL name and print the reply as JSON",
+            description="Call one of the Common or Middle operations (Servo/Common with --servo) and "
+            "print the reply {id, comment, <out parameters>} as JSON; exit 1 if its id is not OK. "
+            "The parameters are checked here first: a mistake is reported with the operation's "
+            "parameter list, and nothing is sent.",
+            epilog="examples: jara-arm call servoON; jara-arm call setSpeedJoint '{\"spdRatio\": 50}'; "
+            "jara-arm call setSpeedJoint 50 (an operation's one parameter may come alone)")
+        _arm(self.call)
+        self.call.add_argument("--servo", action="store_true",
+                               help="ask the servo (Servo/Common/<op>) instead of the command service")
+        self.call.add_argument("--timeout", type=_positive_float, default=10.0, metavar="S",
+                               help="wait this long for the reply [s] (default: 10)")
+        self.call.add_argument("op", metavar="OP", help="the operation's IDL name, e.g. movePTPJointAbs")
+        self.call.add_argument("json", nargs="?", metavar="JSON",
+                               help="the in parameters as a JSON object (default: none)")
+        _client_zenoh_arguments(self.call)
+
+        self.echo = sub.add_parser(
+            "echo", help="print the samples of any key as JSON lines",
+            description="Subscribe to JARA_ARM/<arm>/KEY and print every sample decoded (MessagePack "
+            "or JSON) as one JSON line. Keys: " + ", ".join(echo_keys()) + " ('*' is one chunk, "
+            "'**' any number of them).")
+        _arm(self.echo)
+        self.echo.add_argument("key", metavar="KEY", help="relative to JARA_ARM/<arm>/, e.g. state, log/**")
+        self.echo.add_argument("--rate", type=_positive_float, metavar="HZ",
+                               help="print at most this many samples a second (thins the 1 kHz streams)")
+        ends = self.echo.add_mutually_exclusive_group()
+        ends.add_argument("--once", action="store_true", help="exit after the first sample")
+        ends.add_argument("--count", type=_positive_int, metavar="N", help="exit after N samples")
+        self.echo.add_argument("--timeout", type=_positive_float, metavar="S",
+                               help="exit 1 if the samples asked for did not come within S seconds")
+        self.echo.add_argument("--show-key", action="store_true",
+                               help='print {"key": ..., "value": ...} (for keys with wildcards)')
+        _client_zenoh_arguments(self.echo)
+
+        self.state = sub.add_parser(
+            "state", help="a live one-screen view of an arm",
+            description="State bits by name, queue depth, joints, Cartesian pose, active alarms, servo "
+            "loop health and services, refreshed in place on a terminal (as repeated blocks otherwise).")
+        _arm(self.state)
+        self.state.add_argument("--once", action="store_true", help="print one view and exit")
+        self.state.add_argument("--period", type=_positive_float, default=0.5, metavar="S",
+                                help="refresh period [s] (default: 0.5)")
+        _client_zenoh_arguments(self.state)
+
+        self.wait = sub.add_parser(
+            "wait", help="wait until the arm meets a condition (for scripts)",
+            description="Exit 0 as soon as the condition holds, 1 with what was seen last if it did not "
+            "within the timeout. Conditions: " + "; ".join(f"{c.value}: {h}" for c, h in CONDITION_HELP.items()))
+        _arm(self.wait)
+        self.wait.add_argument("condition", choices=[c.value for c in Condition], metavar="CONDITION",
+                               help=", ".join(c.value for c in Condition))
+        self.wait.add_argument("--timeout", type=_positive_float, default=60.0, metavar="S",
+                               help="give up after S seconds (default: 60)")
+        self.wait.add_argument("--poll", type=_positive_float, default=0.05, metavar="S",
+                               help="look this often [s] (default: 0.05)")
+        _client_zenoh_arguments(self.wait)
+
+        self.completion = sub.add_parser(
+            "completion", help="print a shell completion script",
+            description="Print the completion script of jara-arm (commands, options, operation names, "
+            "keys): source <(jara-arm completion bash)")
+        self.completion.add_argument("shell", choices=SHELLS)
+
+    def commands(self) -> dict[str, argparse.ArgumentParser]:
+        """Every command's parser, by name (for the completion script)."""
+        return {name: getattr(self, name.replace("-", "_")) for name in COMMANDS}
+
+
+#: The subcommands, in the order of ``jara-arm --help``.
+COMMANDS = ("up", "service", "router", "logs", "alarms", "demo", "call", "echo", "state", "wait", "completion")
+
 
 def _obstacle(text: str) -> str:
     """``--obstacle`` of ``up``: checked here, passed on to the servos as written."""
@@ -126,6 +211,31 @@ def _arm_id(text: str) -> str:
         return check_arm(text)
     except ArmIdError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be 1 or more, got {value}")
+    return value
+
+
+def _arm(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--arm", type=_arm_id, default=DEFAULT_ARM, metavar="ID",
+                        help=f"the arm (default: {DEFAULT_ARM})")
 
 
 def _arm_filter(parser: argparse.ArgumentParser) -> None:
@@ -162,16 +272,8 @@ def command_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, list[s
     """
     argv = list(argv)
     parsers = _Parsers()
-    if argv[:1] == ["up"]:
-        return parsers.up, argv[1:]
-    if argv[:1] == ["router"]:
-        return parsers.router, argv[1:]
-    if argv[:1] == ["logs"]:
-        return parsers.logs, argv[1:]
-    if argv[:1] == ["alarms"]:
-        return parsers.alarms, argv[1:]
-    if argv[:1] == ["demo"]:
-        return parsers.demo, argv[1:]
+    if argv[:1] and argv[0] in COMMANDS and argv[0] != "service":
+        return parsers.commands()[argv[0]], argv[1:]
     if argv[:1] == ["service"] and len(argv) >= 2 and argv[1] in NAMES:
         return spec(argv[1]).parser(), argv[2:]
     raise ValueError(f"not a jara-arm command: {' '.join(argv)!r}")
@@ -214,14 +316,52 @@ def _setup_logging(level: str) -> None:
     root.setLevel(level)
 
 
-def _listen(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
-    """``logs`` and ``alarms``: a session on the network, printing until SIGINT/SIGTERM."""
+def _open(args: argparse.Namespace, parser: argparse.ArgumentParser) -> zenoh.Session:
+    """A session on the network of the client options (exit 2 with the reason if it cannot be had)."""
     connect = args.connect or ([] if args.config else [DEFAULT_LISTEN])
     try:
-        session = zenoh.open(zenoh_config(args.mode, args.listen, connect, args.config, args.multicast))
+        return zenoh.open(zenoh_config(args.mode, args.listen, connect, args.config, args.multicast))
     except zenoh.ZError as exc:
         parser.error(f"cannot join the Zenoh network ({', '.join(connect) or args.config}): "
                      f"{zerror_text(exc)}")
+
+
+def _tool(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``call``, ``echo``, ``state``, ``wait``: what can be checked without the network is checked
+    first (exit 2, nothing sent), then one session for the command."""
+    name = args.command
+    try:
+        call = parse_call(args.op, args.json, args.servo) if name == "call" else None
+        key = echo_key(args.arm, args.key) if name == "echo" else None
+    except (CallError, EchoKeyError) as exc:
+        print(f"jara-arm {name}: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    session = _open(args, parser)
+    signals = StopSignals()
+    with session:
+        timeout = args.timeout if name == "call" else 2.0  # [s] per query
+        client = ArmClient(session, args.arm, timeout=timeout)
+        try:
+            if call is not None:
+                return run_call(client, call, sys.stdout, sys.stderr)
+            if key is not None:
+                count = 1 if args.once else args.count
+                return run_echo(session, EchoSettings(key, args.rate, count, args.timeout, args.show_key),
+                                signals.stop, sys.stdout, sys.stderr)
+            if name == "state":
+                return run_state(client, signals.stop, sys.stdout, once=args.once, period=args.period,
+                                 tty=sys.stdout.isatty())
+            return run_wait(client, Condition(args.condition), args.timeout, args.poll, signals.stop, sys.stderr)
+        except ClientError as exc:
+            print(f"jara-arm {name}: {exc}", file=sys.stderr)
+            return 1
+        finally:
+            client.close()
+
+
+def _listen(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``logs`` and ``alarms``: a session on the network, printing until SIGINT/SIGTERM."""
+    session = _open(args, parser)
     signals = StopSignals()
     with session:
         if args.command == "logs":
@@ -243,6 +383,12 @@ def _run(argv: list[str]) -> int:
     if args.command in ("logs", "alarms", "demo"):
         _setup_logging("WARNING")
         return _listen(args, getattr(parsers, args.command))
+    if args.command in ("call", "echo", "state", "wait"):
+        _setup_logging("WARNING")
+        return _tool(args, getattr(parsers, args.command))
+    if args.command == "completion":
+        print(bash_script(parsers.commands()), end="")
+        return 0
     parser = parsers.up if args.command == "up" else parsers.router
     settings = (_up_settings(args, parser) if args.command == "up"
                 else _router_settings(args, parser))

@@ -1,0 +1,105 @@
+"""``jara-arm wait CONDITION``: block until the arm is idle, servo on, alarmed… or time out, for scripts.
+
+Exit 0 when the condition holds, ``TIMED_OUT`` with what was seen last when it
+did not within the timeout. The state comes from ``getState`` polled every
+``poll`` seconds (its publication only speaks on changes); ``alive`` asks for
+the services' liveliness tokens.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import threading
+import time
+from typing import TextIO
+
+import zenoh
+
+from jara_arm.schema.codes import StateBit
+from jara_arm.schema.keys import ArmKeys, Service, parse_alive
+
+from .arm_state import format_state
+from .client import ArmClient, ClientError
+
+TIMED_OUT = 1
+INTERRUPTED = 130  #: the shell's status for SIGINT
+
+
+class Condition(enum.StrEnum):
+    """What ``wait`` waits for."""
+
+    IDLE = "idle"  # servo on, not moving, nothing queued (the command's moving bit counts queued motions)
+    SERVO_ON = "servo-on"
+    SERVO_OFF = "servo-off"
+    ALARM = "alarm"
+    NO_ALARM = "no-alarm"
+    ALIVE = "alive"  # every service of the arm has its liveliness token up
+
+
+CONDITION_HELP = {
+    Condition.IDLE: "servo on, not moving, no motion queued",
+    Condition.SERVO_ON: "servo on",
+    Condition.SERVO_OFF: "servo off",
+    Condition.ALARM: "an alarm is active",
+    Condition.NO_ALARM: "no alarm is active",
+    Condition.ALIVE: f"every service is up ({', '.join(s.value for s in Service)})",
+}
+
+
+def state_meets(condition: Condition, bits: int) -> bool:
+    """Whether the state bits ``bits`` meet ``condition`` (not ``alive``, which has no bits)."""
+    if condition is Condition.IDLE:
+        return bool(bits & StateBit.SERVO_ON) and not bits & StateBit.MOVING
+    if condition is Condition.SERVO_ON:
+        return bool(bits & StateBit.SERVO_ON)
+    if condition is Condition.SERVO_OFF:
+        return not bits & StateBit.SERVO_ON
+    if condition is Condition.ALARM:
+        return bool(bits & StateBit.ALARM)
+    if condition is Condition.NO_ALARM:
+        return not bits & StateBit.ALARM
+    raise ValueError(f"{condition} is not a condition on the state bits")
+
+
+@dataclasses.dataclass(frozen=True)
+class Check:
+    """One look: whether the condition holds, and what was seen (for the timeout message)."""
+
+    met: bool
+    seen: str
+
+
+def alive_services(session: zenoh.Session, keys: ArmKeys, timeout: float = 1.0) -> set[str]:
+    """The services of the arm whose liveliness token is up."""
+    return {parse_alive(str(reply.ok.key_expr))[1]
+            for reply in session.liveliness().get(keys.alive(), timeout=timeout) if reply.ok is not None}
+
+
+def check(client: ArmClient, condition: Condition) -> Check:
+    if condition is Condition.ALIVE:
+        up = alive_services(client.session, client.keys)
+        missing = [s.value for s in Service if s.value not in up]
+        return Check(not missing, f"not up: {', '.join(missing)}" if missing else "every service up")
+    try:
+        bits = client.state()
+    except ClientError as exc:
+        return Check(False, str(exc))
+    return Check(state_meets(condition, bits), f"state {format_state(bits)}")
+
+
+def run_wait(client: ArmClient, condition: Condition, timeout: float, poll: float, stop: threading.Event,
+             err: TextIO) -> int:
+    """Until ``condition`` holds (0), ``timeout`` [s] passes (TIMED_OUT) or ``stop`` (INTERRUPTED)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        seen = check(client, condition)
+        if seen.met:
+            return 0
+        if time.monotonic() >= deadline:
+            print(f"jara-arm wait: {client.keys.arm} not {condition} ({CONDITION_HELP[condition]}) within "
+                  f"{timeout:g} s; last seen: {seen.seen}", file=err, flush=True)
+            return TIMED_OUT
+        if stop.wait(min(poll, max(0.0, deadline - time.monotonic()))):
+            print(f"jara-arm wait: interrupted; last seen: {seen.seen}", file=err, flush=True)
+            return INTERRUPTED
