@@ -410,7 +410,7 @@ def test_live_bad_input_is_refused_here_and_nothing_moves(arm: Arm, argv: list[s
     assert run.returncode == 2 and message in run.stderr and "Traceback" not in run.stderr, run.stderr
     assert run.stdout == ""  # no reply: nothing was sent
     arm.servo_time.passes(0.3)
-    assert np.array_equal(arm.servo_time.settled(), before)
+    assert np.abs(arm.servo_time.settled() - before).max() < 1e-6  # [rad] nothing moved (the hold jitters ~1e-12)
     assert not arm.client.state() & StateBit.MOVING
 
 

@@ -675,7 +675,7 @@ class StateLog:
 
         def arrived() -> bool:
             while (sample := self._sub.try_recv()) is not None:
-                self.seen.append(codec.loads(sample.payload.to_bytes()))
+                self.seen.append(codec.loads(sample.payload.to_bytes(), codec.Encoding.of(sample.encoding)))
                 if done(self.seen[-1]):
                     return True
             return False
