@@ -377,6 +377,22 @@ def test_plain_client_drives_the_servo(iiwa_rig: Rig):
     assert "PLAIN CLIENT OK" in out.stdout
 
 
+def test_the_readme_plain_client_runs_as_it_is(iiwa_rig: Rig):
+    """The README's plain-client snippet, with only the router's port changed: J1 moves 0.15 rad,
+    the servo ends off, and no alarm is left."""
+    iiwa_rig.reset()
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    snippet = readme.split("<!-- plain client: run as it is by tests/test_servo.py -->\n```python\n", 1)[1]
+    snippet = snippet.split("```", 1)[0]
+    port = iiwa_rig.proc.argv[iiwa_rig.proc.argv.index("--listen") + 1].rsplit(":", 1)[1]
+    assert snippet.count("tcp/127.0.0.1:7447") == 1
+    snippet = snippet.replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{port}")
+    out = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert out.stdout.splitlines() == ["{'id': 0, 'comment': 'OK'}", "0.15", "{'id': 0, 'comment': 'OK'}"], out.stdout
+    assert iiwa_rig.state() == 0  # servo off, not moving, no alarm
+
+
 @pytest.fixture(scope="module")
 def panda_rig():
     yield from start_rig("panda")
