@@ -33,21 +33,22 @@ import zenoh
 
 from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
+from jara_arm.services.runtime.arguments import positive_float, positive_int
 from jara_arm.services.runtime.timing import add_health_arguments, health_from_args
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, zenoh_config
 
-from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
-from .services import NAMES, SERVICES, spec
-from .supervisor import StopSignals
-from .up import ArmSpec, UpSettings, run_up
-from .watch import LOG_LEVELS as RECORD_LEVELS
 from .call import CallError, parse_call, run_call
 from .client import ArmClient, ClientError
 from .completion import SHELLS, bash_script
 from .demo import run_demo
 from .echo import EchoKeyError, EchoSettings, echo_key, echo_keys, run_echo
+from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
+from .services import NAMES, SERVICES, spec
 from .state_view import run_state
+from .supervisor import StopSignals
+from .up import ArmSpec, UpSettings, run_up
 from .wait import CONDITION_HELP, Condition, run_wait
+from .watch import LOG_LEVELS as RECORD_LEVELS
 from .watch import run_alarms, run_logs
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
@@ -135,7 +136,7 @@ class _Parsers:
         _arm(self.call)
         self.call.add_argument("--servo", action="store_true",
                                help="ask the servo (Servo/Common/<op>) instead of the command service")
-        self.call.add_argument("--timeout", type=_positive_float, default=10.0, metavar="S",
+        self.call.add_argument("--timeout", type=positive_float, default=10.0, metavar="S",
                                help="wait this long for the reply [s] (default: 10)")
         self.call.add_argument("op", metavar="OP", help="the operation's IDL name, e.g. movePTPJointAbs")
         self.call.add_argument("json", nargs="?", metavar="JSON",
@@ -149,12 +150,12 @@ class _Parsers:
             "'**' any number of them).")
         _arm(self.echo)
         self.echo.add_argument("key", metavar="KEY", help="relative to JARA_ARM/<arm>/, e.g. state, log/**")
-        self.echo.add_argument("--rate", type=_positive_float, metavar="HZ",
+        self.echo.add_argument("--rate", type=positive_float, metavar="HZ",
                                help="print at most this many samples a second (thins the 1 kHz streams)")
         ends = self.echo.add_mutually_exclusive_group()
         ends.add_argument("--once", action="store_true", help="exit after the first sample")
-        ends.add_argument("--count", type=_positive_int, metavar="N", help="exit after N samples")
-        self.echo.add_argument("--timeout", type=_positive_float, metavar="S",
+        ends.add_argument("--count", type=positive_int, metavar="N", help="exit after N samples")
+        self.echo.add_argument("--timeout", type=positive_float, metavar="S",
                                help="exit 1 if the samples asked for did not come within S seconds")
         self.echo.add_argument("--show-key", action="store_true",
                                help='print {"key": ..., "value": ...} (for keys with wildcards)')
@@ -166,7 +167,7 @@ class _Parsers:
             "loop health and services, refreshed in place on a terminal (as repeated blocks otherwise).")
         _arm(self.state)
         self.state.add_argument("--once", action="store_true", help="print one view and exit")
-        self.state.add_argument("--period", type=_positive_float, default=0.5, metavar="S",
+        self.state.add_argument("--period", type=positive_float, default=0.5, metavar="S",
                                 help="refresh period [s] (default: 0.5)")
         _client_zenoh_arguments(self.state)
 
@@ -177,9 +178,9 @@ class _Parsers:
         _arm(self.wait)
         self.wait.add_argument("condition", choices=[c.value for c in Condition], metavar="CONDITION",
                                help=", ".join(c.value for c in Condition))
-        self.wait.add_argument("--timeout", type=_positive_float, default=60.0, metavar="S",
+        self.wait.add_argument("--timeout", type=positive_float, default=60.0, metavar="S",
                                help="give up after S seconds (default: 60)")
-        self.wait.add_argument("--poll", type=_positive_float, default=0.05, metavar="S",
+        self.wait.add_argument("--poll", type=positive_float, default=0.05, metavar="S",
                                help="look this often [s] (default: 0.05)")
         _client_zenoh_arguments(self.wait)
 
@@ -213,24 +214,8 @@ def _arm_id(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not value > 0.0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
-    return value
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be 1 or more, got {value}")
-    return value
 
 
 def _arm(parser: argparse.ArgumentParser) -> None:

@@ -73,10 +73,10 @@ def test_the_tools_parse_their_arguments() -> None:
 
 @pytest.mark.parametrize("argv, message", [
     (["wait", "sleepy"], "invalid choice: 'sleepy'"),
-    (["wait", "idle", "--timeout", "-1"], "must be a positive number"),
-    (["echo", "state", "--rate", "0"], "must be a positive number"),
+    (["wait", "idle", "--timeout", "-1"], "expected a positive number"),
+    (["echo", "state", "--rate", "0"], "expected a positive number"),
     (["echo", "state", "--once", "--count", "3"], "not allowed with argument"),
-    (["echo", "state", "--count", "0"], "must be 1 or more"),
+    (["echo", "state", "--count", "0"], "expected a whole number of 1 or more"),
     (["call", "--arm", "bad/id", "getState"], "arm id 'bad/id' must be one chunk"),
     (["completion", "tcsh"], "invalid choice: 'tcsh'"),
 ])

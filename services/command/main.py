@@ -13,6 +13,7 @@ from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.keys import Service
 from jara_arm.schema.messages import STATE_MESSAGE, StateMessage
 from jara_arm.schema.operations import COMMON, MIDDLE, Interface
+from jara_arm.services.runtime.arguments import positive_float, positive_int
 from jara_arm.services.runtime.monitor_link import MonitorLink
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 from jara_arm.services.runtime.wire import Publication
@@ -55,12 +56,12 @@ class CommandService(ArmService):
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--queue-capacity", type=_positive_int, default=DEFAULT_CAPACITY, metavar="N",
+        parser.add_argument("--queue-capacity", type=positive_int, default=DEFAULT_CAPACITY, metavar="N",
                             help=f"motions the queue holds before FULL_MOTION_QUEUE_ERR "
                             f"(default: {DEFAULT_CAPACITY})")
-        parser.add_argument("--servo-timeout", type=_positive_seconds, default=SERVO_TIMEOUT, metavar="S",
+        parser.add_argument("--servo-timeout", type=positive_float, default=SERVO_TIMEOUT, metavar="S",
                             help=f"time the servo has to answer a query [s] (default: {SERVO_TIMEOUT:g})")
-        parser.add_argument("--plan-timeout", type=_positive_seconds, default=PLAN_TIMEOUT, metavar="S",
+        parser.add_argument("--plan-timeout", type=positive_float, default=PLAN_TIMEOUT, metavar="S",
                             help=f"time the planner has to plan one motion [s] (default: {PLAN_TIMEOUT:g})")
 
     def start(self, ctx: ServiceContext) -> None:
@@ -91,24 +92,8 @@ class CommandService(ArmService):
                f"{opts.queue_capacity}, reach {settings.reach:.3f} m")
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
 
 
-def _positive_seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"expected a positive number of seconds, got {value}")
-    return value
 
 
 PROGRAM = CommandService
