@@ -10,6 +10,7 @@ Pinocchio forward kinematics.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import threading
 import time
 from collections.abc import Iterator
@@ -697,3 +698,15 @@ def test_fifo_estimate_extrapolates_and_reanchors():
     assert fifo.depth(100.105) == pytest.approx(9.0)
     fifo.report(4, 50.0, 100.106)  # a stamp from another clock: timed by its arrival
     assert fifo.depth(100.106) == pytest.approx(4.0)
+
+
+def test_the_planner_has_a_method_per_motion_operation():
+    """``MotionPlanner.plan`` calls the method named after the IDL operation: one for every motion."""
+    from jara_arm.schema.operations import MIDDLE
+    from jara_arm.services.planner.planning import MotionPlanner
+
+    motions = sorted(op.name for op in MIDDLE.values() if op.motion)
+    assert len(motions) == 12
+    for name in motions:
+        params = list(inspect.signature(getattr(MotionPlanner, name)).parameters)
+        assert params == ["self", "req", "start", *(p.name for p in MIDDLE[name].inputs)], name

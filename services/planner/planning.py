@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,9 +50,9 @@ from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, WireError
-from jara_arm.schema.operations import MIDDLE, OP
+from jara_arm.schema.operations import MIDDLE
 from jara_arm.schema.planner import MotionRequest, MotionSettings
-from jara_arm.schema.types import CarPosWithElbow
+from jara_arm.schema.types import CarPosWithElbow, JointPos
 
 from . import families
 from .families import CartesianKind, CartesianRule, Orientation
@@ -142,34 +143,52 @@ class MotionPlanner:
         try:
             args = codec.decode_args(op, req.args)  # wire form to typed, no second serialisation
             self._check_settings(req.settings)
-            return self._dispatch(req, op.name, args, start)
+            motion: Callable[..., PlannedMotion] = getattr(self, op.name)  # one method per IDL motion
+            return motion(req, start, **args)
         except WireError as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
         except (PathGeometryError, ProfileError, KinematicsError) as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {exc}") from None
 
-    def _dispatch(self, req: MotionRequest, name: str, args: dict, start: Joints) -> PlannedMotion:
-        s, n = req.settings, self.n
-        if name == OP.movePTPJointAbs:
-            return self._joint_ptp(req, start, self._joint_arg(args["jointPoints"]))
-        if name == OP.movePTPJointRel:
-            return self._joint_ptp(req, start, start[:n] + self._joint_arg(args["jointPoints"]))
-        if name == OP.goHome:
-            return self._joint_ptp(req, start, np.array(s.home, dtype=float), "home")
-        if name in (OP.movePTPCartesianAbs, OP.movePTPCartesianRel):
-            return self._ptp_cartesian(req, start, args["carPoint"], name == OP.movePTPCartesianRel)
-        if name in (OP.moveLinearCartesianAbs, OP.moveLinearCartesianRel):
-            return self._linear(req, start, args["carPoint"], name == OP.moveLinearCartesianRel)
-        if name in (OP.moveCircularCartesianAbs, OP.moveCircularCartesianRel):
-            return self._circular(req, start, args["carPointR"], args["carPointT"],
-                                  name == OP.moveCircularCartesianRel)
-        if name == OP.moveGripper:
-            return self._gripper(req, start, args["angleRatio"])
-        if name == OP.openGripper:
-            return self._gripper(req, start, 100)
-        if name == OP.closeGripper:
-            return self._gripper(req, start, 0)
-        raise PlanRefused(ReturnCode.NOT_IMPLEMENTED, f"{name} is not planned by this planner")
+    # ------------------------------------------------------------------ the IDL motions, by name
+
+    def movePTPJointAbs(self, req: MotionRequest, start: Joints, jointPoints: JointPos) -> PlannedMotion:
+        return self._joint_ptp(req, start, self._joint_arg(jointPoints))
+
+    def movePTPJointRel(self, req: MotionRequest, start: Joints, jointPoints: JointPos) -> PlannedMotion:
+        return self._joint_ptp(req, start, start[:self.n] + self._joint_arg(jointPoints))
+
+    def goHome(self, req: MotionRequest, start: Joints) -> PlannedMotion:
+        return self._joint_ptp(req, start, np.array(req.settings.home, dtype=float), "home")
+
+    def movePTPCartesianAbs(self, req: MotionRequest, start: Joints, carPoint: CarPosWithElbow) -> PlannedMotion:
+        return self._ptp_cartesian(req, start, carPoint, relative=False)
+
+    def movePTPCartesianRel(self, req: MotionRequest, start: Joints, carPoint: CarPosWithElbow) -> PlannedMotion:
+        return self._ptp_cartesian(req, start, carPoint, relative=True)
+
+    def moveLinearCartesianAbs(self, req: MotionRequest, start: Joints, carPoint: CarPosWithElbow) -> PlannedMotion:
+        return self._linear(req, start, carPoint, relative=False)
+
+    def moveLinearCartesianRel(self, req: MotionRequest, start: Joints, carPoint: CarPosWithElbow) -> PlannedMotion:
+        return self._linear(req, start, carPoint, relative=True)
+
+    def moveCircularCartesianAbs(self, req: MotionRequest, start: Joints, carPointR: CarPosWithElbow,
+                                 carPointT: CarPosWithElbow) -> PlannedMotion:
+        return self._circular(req, start, carPointR, carPointT, relative=False)
+
+    def moveCircularCartesianRel(self, req: MotionRequest, start: Joints, carPointR: CarPosWithElbow,
+                                 carPointT: CarPosWithElbow) -> PlannedMotion:
+        return self._circular(req, start, carPointR, carPointT, relative=True)
+
+    def moveGripper(self, req: MotionRequest, start: Joints, angleRatio: int) -> PlannedMotion:
+        return self._gripper(req, start, angleRatio)
+
+    def openGripper(self, req: MotionRequest, start: Joints) -> PlannedMotion:
+        return self._gripper(req, start, 100)
+
+    def closeGripper(self, req: MotionRequest, start: Joints) -> PlannedMotion:
+        return self._gripper(req, start, 0)
 
     # ------------------------------------------------------------------ checks
 
