@@ -138,7 +138,7 @@ class Bench:
         raise TimeoutError(f"motion {motion} not done")
 
     def tcp(self, q: np.ndarray) -> np.ndarray:
-        return np.array([self.kin.control_point(x[:7])[:3, 3] for x in np.atleast_2d(q)])
+        return np.array([self.kin.control_point(x[:7]).translation for x in np.atleast_2d(q)])
 
 
 def car(p, R) -> dict:
@@ -177,7 +177,7 @@ def cartesian(b: Bench) -> list[str]:
     _, _, _, fb, _ = b.drain()
     q0 = np.array(MODEL.ready_pose)
     T0 = b.kin.control_point(q0)
-    p0, R0 = T0[:3, 3], T0[:3, :3]
+    p0, R0 = T0.translation, T0.rotation
     # 0.5 m LIN, from the ready pose across the front of the robot
     a = p0 + [-0.1, -0.25, 0.0]
     m, _ = b.plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)})
@@ -220,7 +220,7 @@ def cartesian(b: Bench) -> list[str]:
 def in_process(b: Bench, q0: np.ndarray, a: np.ndarray, lin_args: dict, circ_args: dict) -> str:
     """The LIN and the CIRC of :func:`cartesian` planned here, the LIN from a LIN ready pose -> its start."""
     planner = MotionPlanner(MODEL)
-    R0 = b.kin.control_point(q0)[:3, :3]
+    R0 = b.kin.control_point(q0).rotation
     plan = lambda op, args, q: planner.plan(MotionRequest(0, op, args, b.settings()), q)  # noqa: E731
     qa = plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)}, q0).end
     qb = plan(OP.moveLinearCartesianAbs, lin_args, qa).end

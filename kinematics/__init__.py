@@ -2,7 +2,7 @@
 
 =================  ==================================================================
 ``errors``         :class:`KinematicsError`, the package's one error root
-``frames``         poses (``pin.SE3`` inside the package; 4x4 / 3x4 matrices outside),
+``frames``         poses (``pin.SE3``; 3x4 ``HgMatrix`` only at the wire: ``as_se3``, ``se3_to_hg``),
                    arm base <-> robot frame, pose error
 ``arm_angle``      the arm angle of a 7-axis arm, its value and gradient on Pinocchio
 ``ik``             task masks, :class:`IkResult`, seed table, restarts, the IK loop

@@ -10,11 +10,13 @@
   offset ``B`` is the pose of the robot frame seen from the arm base frame:
   :func:`arm_to_robot` / :func:`robot_to_arm`.
 
-Inside this package a pose is a ``pin.SE3``. At the public boundary a pose is a
-4x4 homogeneous matrix (``np.ndarray`` of shape (4, 4)), a 3x4 ``HgMatrix``
-(the wire's top 3x4 block: :func:`hg_to_se3`, :func:`se3_to_hg`) or a
-``pin.SE3``; :func:`as_se3` is the one place that checks one. Positions are
-[m], angles [rad].
+A single pose is a ``pin.SE3``, in this package's API and inside the services;
+compose poses with SE3 operations (``*``, ``inverse()``, ``act``, ``actInv``).
+Arrays appear only at the wire, where a 3x4 ``HgMatrix`` enters or leaves
+(:func:`hg_to_se3`, :func:`as_se3` -- the one place that checks a rotation --
+and :func:`se3_to_hg`), and in vectorised batches of N poses or points (the
+planner's sampled paths), which stay (N, 4, 4) / (N, 3) arrays for speed.
+Positions are [m], angles [rad].
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from .errors import KinematicsError
 __all__ = ["Pose", "arm_to_robot", "as_se3", "hg_to_se3", "pose_error", "robot_to_arm", "se3_to_hg"]
 
 Pose = Union[npt.ArrayLike, pin.SE3]  # Union[]: `|` on a runtime alias needs both sides to support it
-"""A pose accepted at the public boundary: a 4x4 homogeneous matrix, a 3x4 ``HgMatrix`` or a ``pin.SE3``."""
+"""A pose as :func:`as_se3` accepts it: a 4x4 homogeneous matrix, a 3x4 ``HgMatrix`` or a ``pin.SE3``."""
 
 _ROTATION_TOL = 1e-6  # on det - 1 and on each entry of R^T R - I
 
@@ -60,42 +62,32 @@ def as_se3(pose: Pose, what: str = "pose") -> pin.SE3:
     return pin.SE3(a[:3, :3], a[:3, 3])
 
 
-def hg_to_se3(hg: npt.ArrayLike) -> np.ndarray:
-    """4x4 homogeneous matrix from a 3x4 ``HgMatrix`` ([R | p], p in [m]); the rotation is not checked."""
+def hg_to_se3(hg: npt.ArrayLike) -> pin.SE3:
+    """The pose of a 3x4 ``HgMatrix`` ([R | p], p in [m]); the rotation is not checked (:func:`as_se3` does)."""
     a = np.asarray(hg, dtype=float)
     if a.shape != (3, 4):
         raise KinematicsError(f"HgMatrix: expected shape (3, 4), got {a.shape}")
-    out = np.eye(4)
-    out[:3] = a
-    return out
+    return pin.SE3(a[:, :3], a[:, 3])
 
 
-def se3_to_hg(pose: npt.ArrayLike) -> np.ndarray:
-    """3x4 ``HgMatrix`` ([R | p], p in [m]) from a 4x4 homogeneous matrix; the rotation is not checked."""
-    a = np.asarray(pose, dtype=float)
-    if a.shape != (4, 4):
-        raise KinematicsError(f"pose: expected shape (4, 4), got {a.shape}")
-    return a[:3].copy()
+def se3_to_hg(pose: pin.SE3) -> np.ndarray:
+    """3x4 ``HgMatrix`` ([R | p], p in [m]) of a pose, for the wire; a new array."""
+    if not isinstance(pose, pin.SE3):
+        raise KinematicsError(f"pose: expected a pin.SE3, got {type(pose).__name__}")
+    return pose.homogeneous[:3].copy()
 
 
-def arm_to_robot(pose_arm: Pose, base: Pose | None = None) -> np.ndarray:
-    """Pose in the robot frame, ``inv(B) · T_arm`` (4x4); ``base`` = B, identity if None."""
-    t = as_se3(pose_arm)
-    if base is None:
-        return t.homogeneous
-    return as_se3(base, "base offset").actInv(t).homogeneous
+def arm_to_robot(pose_arm: pin.SE3, base: pin.SE3 | None = None) -> pin.SE3:
+    """Pose in the robot frame, ``inv(B) · T_arm``; ``base`` = B, identity if None. A new SE3."""
+    return pose_arm.copy() if base is None else base.actInv(pose_arm)
 
 
-def robot_to_arm(pose_robot: Pose, base: Pose | None = None) -> np.ndarray:
-    """Pose in the arm base frame, ``B · T_robot`` (4x4); ``base`` = B, identity if None."""
-    t = as_se3(pose_robot)
-    if base is None:
-        return t.homogeneous
-    return (as_se3(base, "base offset") * t).homogeneous
+def robot_to_arm(pose_robot: pin.SE3, base: pin.SE3 | None = None) -> pin.SE3:
+    """Pose in the arm base frame, ``B · T_robot``; ``base`` = B, identity if None. A new SE3."""
+    return pose_robot.copy() if base is None else base * pose_robot
 
 
-def pose_error(a: Pose, b: Pose) -> tuple[float, float]:
+def pose_error(a: pin.SE3, b: pin.SE3) -> tuple[float, float]:
     """(position error [m], rotation angle [rad]) between two poses."""
-    sa, sb = as_se3(a), as_se3(b)
-    return (float(np.linalg.norm(sa.translation - sb.translation)),
-            float(np.linalg.norm(pin.log3(sa.rotation.T @ sb.rotation))))
+    return (float(np.linalg.norm(a.translation - b.translation)),
+            float(np.linalg.norm(pin.log3(a.rotation.T @ b.rotation))))

@@ -1,6 +1,8 @@
 """The kinematic model of one arm on Pinocchio: joints and limits, forward kinematics, Jacobians, IK.
 
-Frames as in :mod:`.frames`: everything works in the arm base frame. Joint
+Frames as in :mod:`.frames`: everything works in the arm base frame, and every
+pose taken or returned is a ``pin.SE3`` (wire values go through
+:func:`.frames.as_se3` / :func:`.frames.hg_to_se3` first). Joint
 values are [rad] (revolute) or [m] (prismatic), always in the order J1..Jn =
 ``RobotModel.arm_joints``; Pinocchio's own coordinate order may differ, and
 stays inside this class.
@@ -23,12 +25,19 @@ from jara_arm.robots.model import RobotModel
 
 from .arm_angle import DEFAULT_ELBOW_JOINTS, ArmAngleChain
 from .errors import KinematicsError
-from .frames import Pose, as_se3
 from .ik import FULL_MASK, IkResult, IkSolver, Mask, check_mask, nearest_turn
 
 __all__ = ["Kinematics"]
 
 _LIMIT_SLACK = 1e-12  # [rad or m] narrower limits may exceed the hard ones by float error only
+
+
+def _se3(pose: pin.SE3, what: str) -> pin.SE3:
+    """``pose`` itself; a clear error for anything else (a wire array goes through ``as_se3`` first)."""
+    if not isinstance(pose, pin.SE3):
+        raise KinematicsError(f"{what}: expected a pin.SE3 (convert a wire value with as_se3 or hg_to_se3), "
+                              f"got {type(pose).__name__}")
+    return pose
 
 
 class Kinematics:
@@ -174,11 +183,11 @@ class Kinematics:
         """Pinocchio coordinates -> arm joints J1..Jn (a new array)."""
         return q.copy() if self._perm is None else q[self._perm]
 
-    def _frame(self, tool: Pose | None) -> int:
+    def _frame(self, tool: pin.SE3 | None) -> int:
         """Frame id of the flange (tool None) or of the control point ``flange · tool``."""
         if tool is None:
             return self._fid
-        self._model.frames[self._cp_fid].placement = self._flange_placement * as_se3(tool, "tool")
+        self._model.frames[self._cp_fid].placement = self._flange_placement * _se3(tool, "tool")
         return self._cp_fid
 
     def within_limits(self, q: npt.ArrayLike, tol: float = 0.0) -> bool:
@@ -234,22 +243,22 @@ class Kinematics:
 
     # ------------------------------------------------------------------ forward
 
-    def fk(self, q: npt.ArrayLike) -> np.ndarray:
-        """Flange pose in the arm base frame (4x4) at joints ``q`` [rad or m]."""
+    def fk(self, q: npt.ArrayLike) -> pin.SE3:
+        """Flange pose in the arm base frame at joints ``q`` [rad or m] (a new SE3)."""
         qp = self._q(q)
         pin.forwardKinematics(self._model, self._data, qp)
         pin.updateFramePlacement(self._model, self._data, self._fid)
-        return self._oMf[self._fid].homogeneous
+        return self._oMf[self._fid].copy()  # oMf is the work area: the next call overwrites it
 
-    def control_point(self, q: npt.ArrayLike, tool: Pose | None = None) -> np.ndarray:
-        """Control point pose ``T_flange · C`` in the arm base frame (4x4); ``tool`` = C (4x4 or 3x4)."""
+    def control_point(self, q: npt.ArrayLike, tool: pin.SE3 | None = None) -> pin.SE3:
+        """Control point pose ``T_flange · C`` in the arm base frame (a new SE3); ``tool`` = C."""
         qp = self._q(q)
         fid = self._frame(tool)
         pin.forwardKinematics(self._model, self._data, qp)
         pin.updateFramePlacement(self._model, self._data, fid)
-        return self._oMf[fid].homogeneous
+        return self._oMf[fid].copy()
 
-    def jacobian(self, q: npt.ArrayLike, tool: Pose | None = None) -> np.ndarray:
+    def jacobian(self, q: npt.ArrayLike, tool: pin.SE3 | None = None) -> np.ndarray:
         """Jacobian (6 x n) of the control point, frame LOCAL_WORLD_ALIGNED.
 
         Rows: linear velocity [m/s] of the control point origin, then angular
@@ -297,10 +306,10 @@ class Kinematics:
 
     def ik(
         self,
-        target: Pose,
+        target: pin.SE3,
         q_seed: npt.ArrayLike,
         *,
-        tool: Pose | None = None,
+        tool: pin.SE3 | None = None,
         elbow: float | None = None,
         mask: Sequence[bool] = FULL_MASK,
         tol_pos: float = 1e-5,
@@ -312,8 +321,7 @@ class Kinematics:
     ) -> IkResult:
         """Joints that put the control point at ``target``.
 
-        ``target``: control point pose in the arm base frame (4x4, 3x4 or
-        ``pin.SE3``); ``q_seed`` [rad or m]: start configuration; ``tool``:
+        ``target``: control point pose in the arm base frame; ``q_seed`` [rad or m]: start configuration; ``tool``:
         control point offset C (identity if None); ``elbow`` [rad]: arm angle
         to reach as well (7-axis arms; ignored otherwise); ``tol_pos`` [m],
         ``tol_rot``, ``tol_elbow`` [rad]: convergence tolerances;
@@ -351,7 +359,7 @@ class Kinematics:
         Choose a ``mask`` the arm can satisfy: with fewer than six axes the
         full pose is generally out of reach and IK then spends ``max_iter``.
         """
-        t = as_se3(target, "target")
+        t = _se3(target, "target")
         if not (tol_pos > 0.0 and tol_rot > 0.0 and tol_elbow > 0.0 and max_iter >= 1):
             raise KinematicsError("ik: tolerances must be > 0 and max_iter >= 1")
         m: Mask = FULL_MASK if mask is FULL_MASK else check_mask(mask)
@@ -360,7 +368,7 @@ class Kinematics:
         else:
             lo, hi, wraps = self._limits(lower, upper)
         q0 = np.minimum(np.maximum(self._q(q_seed, "q_seed"), lo), hi)
-        c = None if tool is None else as_se3(tool, "tool")
+        c = None if tool is None else _se3(tool, "tool")
         fid = self._frame(c)
         psi = None if elbow is None or self._chain is None else math.remainder(float(elbow), math.tau)
         q, ok, it, pe, re, ee = self._ik.solve(t, c, fid, q0, lo, hi, m, psi, tol_pos, tol_rot, tol_elbow,

@@ -64,7 +64,7 @@ def _obstacle() -> str:
     Turning J1 positive by about 0.3 rad runs the wrist into it; nothing else
     in this module goes there.
     """
-    x, y, z = Kinematics(IIWA, seed_table=0).fk(READY)[:3, 3]
+    x, y, z = Kinematics(IIWA, seed_table=0).fk(READY).translation
     r, a = float(np.hypot(x, y)), float(np.arctan2(y, x)) + 0.5
     return f"{r * np.cos(a):.3f},{r * np.sin(a):.3f},{z:.3f},0.05,0.05,0.15"
 
@@ -545,18 +545,18 @@ def test_position_stream_that_leaves_the_joint_soft_limits(arm: System):
 def test_control_point_crosses_the_cartesian_soft_limits(arm: System):
     """A stream that lifts the tool above the Cartesian box: WARNING 0x05, kept while outside."""
     q0 = arm.target()
-    z0 = arm.kin.fk(q0)[2, 3]
+    z0 = arm.kin.fk(q0).translation[2]
     c = arm.cart_limits
     box = {"xLimit": c["xLimit"], "yLimit": c["yLimit"], "zLimit": LimitValue(upper=z0 + 0.03, lower=c["zLimit"].lower)}
     arm.ok(arm.middle(OP.setSoftLimitCartesian, box))
     arm.wait_cartesian_box(box)  # the monitor has the new settings
     q1 = q0 + np.array([0.0, -0.4, 0.0, 0.3, 0.0, 0.0, 0.0])
-    assert arm.kin.fk(q1)[2, 3] > z0 + 0.06, "the test motion must lift the flange"
+    assert arm.kin.fk(q1).translation[2] > z0 + 0.06, "the test motion must lift the flange"
     since = arm.mark()
     arm.stream(min_jerk(q0, q1, 0.8), lead=50)
     t, event = arm.event(AlarmCode.SOFT_LIMIT_CARTESIAN, since)
     tm, q = arm.feedback()
-    z = np.array([arm.kin.fk(x[:N])[2, 3] for x in q])
+    z = np.array([arm.kin.fk(x[:N]).translation[2] for x in q])
     crossed = tm[int(np.argmax(z > box["zLimit"].upper + 1e-3))]
     latency("Cartesian soft limit (feedback tm)", crossed, t)
     assert event.alarm.type is AlarmType.WARNING and "z" in event.alarm.description

@@ -106,7 +106,7 @@ class Arm:
 
     def fk(self, q=None) -> np.ndarray:
         """Flange pose [arm frame] of joint feedback (identity offsets in every test but one)."""
-        return self.kin.fk((self.joints() if q is None else q)[: self.n])
+        return self.kin.fk((self.joints() if q is None else q)[: self.n]).homogeneous
 
     def record(self) -> None:
         while self.fb.try_recv() is not None:

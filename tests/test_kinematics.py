@@ -19,6 +19,7 @@ from jara_arm.kinematics import (
     KinematicsError,
     arm_angle,
     arm_to_robot,
+    as_se3,
     hg_to_se3,
     pose_error,
     robot_to_arm,
@@ -44,8 +45,8 @@ def uniform(kin: Kinematics, rng: np.random.Generator, margin: float = 0.0) -> n
     return lo + (hi - lo) * rng.random(kin.axis_num)
 
 
-def random_pose(rng: np.random.Generator, scale: float = 0.2) -> np.ndarray:
-    return pin.exp6(pin.Motion(rng.normal(0, scale, 6))).homogeneous
+def random_pose(rng: np.random.Generator, scale: float = 0.2) -> pin.SE3:
+    return pin.exp6(pin.Motion(rng.normal(0, scale, 6)))
 
 
 def wrap(a: float) -> float:
@@ -106,7 +107,7 @@ def test_fk_matches_pybullet(kins, name):
     rng = np.random.default_rng(1)
     qs = [uniform(kin, rng) for _ in range(20)]
     for q, T_pb in zip(qs, pybullet_flange(kin.robot, qs)):
-        T = kin.fk(q)
+        T = kin.fk(q).homogeneous
         assert T.shape == (4, 4)
         np.testing.assert_allclose(T, T_pb, atol=1e-6)
 
@@ -131,7 +132,7 @@ def test_jacobian_finite_difference(kins, name):
         for k in range(kin.axis_num):
             dq = np.zeros(kin.axis_num)
             dq[k] = h
-            Tp, Tm = kin.control_point(q + dq, tool), kin.control_point(q - dq, tool)
+            Tp, Tm = kin.control_point(q + dq, tool).homogeneous, kin.control_point(q - dq, tool).homogeneous
             lin = (Tp[:3, 3] - Tm[:3, 3]) / (2 * h)
             ang = pin.log3(Tp[:3, :3] @ Tm[:3, :3].T) / (2 * h)  # along the base axes
             np.testing.assert_allclose(J[:3, k], lin, atol=1e-6)
@@ -146,7 +147,7 @@ def test_hg_matrix_round_trip():
     T = random_pose(rng)
     hg = se3_to_hg(T)
     assert hg.shape == (3, 4)
-    np.testing.assert_array_equal(hg_to_se3(hg), T)
+    np.testing.assert_array_equal(hg_to_se3(hg).homogeneous, T.homogeneous)
     with pytest.raises(KinematicsError):
         hg_to_se3(np.eye(4))
     with pytest.raises(KinematicsError):
@@ -161,20 +162,20 @@ def test_base_and_control_point_offsets_compose(kins, name):
     q = uniform(kin, rng)
     B, C = random_pose(rng, 0.5), random_pose(rng, 0.3)
     T_cp = kin.control_point(q, C)
-    np.testing.assert_allclose(T_cp, kin.fk(q) @ C, atol=1e-12)
-    np.testing.assert_allclose(kin.control_point(q), kin.fk(q), atol=1e-15)
+    np.testing.assert_allclose(T_cp.homogeneous, kin.fk(q).homogeneous @ C.homogeneous, atol=1e-12)
+    np.testing.assert_allclose(kin.control_point(q).homogeneous, kin.fk(q).homogeneous, atol=1e-15)
     T_robot = arm_to_robot(T_cp, B)
-    np.testing.assert_allclose(T_robot, np.linalg.inv(B) @ T_cp, atol=1e-12)
-    np.testing.assert_allclose(robot_to_arm(T_robot, B), T_cp, atol=1e-12)
-    np.testing.assert_allclose(arm_to_robot(T_cp), T_cp, atol=0)
+    np.testing.assert_allclose(T_robot.homogeneous, np.linalg.inv(B.homogeneous) @ T_cp.homogeneous, atol=1e-12)
+    np.testing.assert_allclose(robot_to_arm(T_robot, B).homogeneous, T_cp.homogeneous, atol=1e-12)
+    np.testing.assert_allclose(arm_to_robot(T_cp).homogeneous, T_cp.homogeneous, atol=0)
     # IK of a robot-frame target with a tool: back through B, forward through C.
     target_robot = arm_to_robot(kin.control_point(uniform(kin, rng), C), B)
     res = kin.ik(robot_to_arm(target_robot, B), q, tool=C)
     assert res.success
     pe, re = pose_error(arm_to_robot(kin.control_point(res.q, C), B), target_robot)
     assert pe < 1e-5 and re < 1e-5
-    # 3x4 HgMatrix accepted for targets and tools
-    res2 = kin.ik(se3_to_hg(robot_to_arm(target_robot, B)), q, tool=se3_to_hg(C))
+    # 3x4 HgMatrix from the wire accepted for targets and tools, through as_se3
+    res2 = kin.ik(as_se3(se3_to_hg(robot_to_arm(target_robot, B))), q, tool=as_se3(se3_to_hg(C)))
     np.testing.assert_allclose(res2.q, res.q, atol=1e-12)
 
 
@@ -241,8 +242,7 @@ def test_ik_is_reproducible(kins):
 
 def test_ik_unreachable_fails_within_limits(kins):
     kin = kin_of(kins, "iiwa")
-    target = np.eye(4)
-    target[:3, 3] = (3.0, 0.0, 0.5)  # 3 m away: out of reach
+    target = pin.SE3(np.eye(3), np.array([3.0, 0.0, 0.5]))  # 3 m away: out of reach
     res = kin.ik(target, np.zeros(7), max_iter=200)
     assert not res.success
     assert res.iterations == 200
@@ -256,10 +256,10 @@ def test_ik_position_only_mask(kins, name):
     rng = np.random.default_rng(8)
     for _ in range(50):
         target = kin.fk(uniform(kin, rng))
-        target[:3, :3] = random_pose(rng, 3.0)[:3, :3]  # orientation is free: anything goes
+        target.rotation = random_pose(rng, 3.0).rotation  # orientation is free: anything goes
         res = kin.ik(target, uniform(kin, rng), mask=POSITION_MASK)
         assert res.success and res.rot_err == 0.0
-        assert np.linalg.norm(kin.fk(res.q)[:3, 3] - target[:3, 3]) <= 1e-5
+        assert np.linalg.norm(kin.fk(res.q).translation - target.translation) <= 1e-5
 
 
 def test_ik_mask_frees_rotation_about_a_base_axis(kins):
@@ -269,10 +269,11 @@ def test_ik_mask_frees_rotation_about_a_base_axis(kins):
     mask = (True, True, True, False, True, True)
     for _ in range(50):
         target = kin.fk(uniform(kin, rng))
-        target[:3, :3] = pin.exp3(np.array([rng.uniform(-1, 1), 0, 0])) @ target[:3, :3]
+        target.rotation = pin.exp3(np.array([rng.uniform(-1, 1), 0, 0])) @ target.rotation
         res = kin.ik(target, uniform(kin, rng), mask=mask)
         assert res.success
-        T = kin.fk(res.q)
+        T = kin.fk(res.q).homogeneous
+        target = target.homogeneous
         w = pin.log3(target[:3, :3] @ T[:3, :3].T)
         assert abs(w[1]) <= 1e-5 and abs(w[2]) <= 1e-5
         assert np.linalg.norm(T[:3, 3] - target[:3, 3]) <= 1e-5
@@ -288,7 +289,7 @@ def test_ik_other_models_with_their_task_mask(kins, name):
         res = kin.ik(target, uniform(kin, rng), mask=mask)
         assert res.success, res
         assert kin.within_limits(res.q)
-        T = kin.fk(res.q)
+        T, target = kin.fk(res.q).homogeneous, target.homogeneous
         err = np.concatenate((target[:3, 3] - T[:3, 3], pin.log3(target[:3, :3] @ T[:3, :3].T)))
         assert np.all(np.abs(err[list(mask)]) <= 1e-5)
     assert kin.elbow_angle(np.array(kin.robot.ready_pose)) == 0.0
@@ -398,9 +399,9 @@ def test_errors(kins):
     with pytest.raises(KinematicsError):
         kin.ik(np.eye(3), np.zeros(7))
     with pytest.raises(KinematicsError):
-        kin.ik(np.eye(4), np.zeros(7), mask=(True, True, True))
+        kin.ik(pin.SE3.Identity(), np.zeros(7), mask=(True, True, True))
     with pytest.raises(KinematicsError):
-        kin.ik(np.eye(4), np.zeros(7), mask=(False,) * 6)
+        kin.ik(pin.SE3.Identity(), np.zeros(7), mask=(False,) * 6)
     with pytest.raises(KinematicsError):
         Kinematics(ROBOTS["iiwa"], elbow_joints=(3, 1, 5))
     six = kin_of(kins, "arm6") if "arm6" in ROBOTS else None

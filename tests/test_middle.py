@@ -72,7 +72,7 @@ class Arm:
     def points(self, q: np.ndarray) -> np.ndarray:
         """Flange positions [m] (identity base and control point offsets) of joint samples."""
         n = self.model.axis_num
-        return np.array([self.kin.fk(qi[:n])[:3, 3] for qi in q])
+        return np.array([self.kin.fk(qi[:n]).translation for qi in q])
 
     def idle(self, timeout: float = 60.0) -> None:
         self.client.wait_idle(timeout)
@@ -285,7 +285,7 @@ def test_soft_limit_joint_refused_while_moving(arm: Arm):
 def test_offsets_change_cartesian_feedback(arm: Arm):
     n = arm.model.axis_num
     q = arm.joints()[:n]
-    flange = arm.kin.fk(q)
+    flange = arm.kin.fk(q).homogeneous
     assert np.abs(arm.pose() - flange[:3]).max() < 1e-6
     c = np.cos(0.3)
     rot = np.array([[c, -np.sin(0.3), 0], [np.sin(0.3), c, 0], [0, 0, 1]])

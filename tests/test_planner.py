@@ -39,7 +39,7 @@ from jara_arm.schema.planner import (
     PlanReply,
 )
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
-from jara_arm.kinematics import Kinematics
+from jara_arm.kinematics import Kinematics, as_se3
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 from jara_arm.services.planner.servo_fifo import FifoEstimate
 from jara_arm.services.runtime.zenoh_args import zenoh_config
@@ -249,10 +249,10 @@ class Rig:
     # -- kinematics -------------------------------------------------------------------
     def points(self, q: np.ndarray) -> np.ndarray:
         """Control point positions (N, 3) [m] at joints (N, dof), identity offsets."""
-        return np.array([self.kin.control_point(x[:self.n])[:3, 3] for x in q])
+        return np.array([self.kin.control_point(x[:self.n]).translation for x in q])
 
     def tcp(self, q: np.ndarray) -> np.ndarray:
-        return self.kin.control_point(np.asarray(q)[:self.n])
+        return self.kin.control_point(np.asarray(q)[:self.n]).homogeneous
 
 
 def start_rig(robot_name: str) -> Iterator[Rig]:
@@ -612,16 +612,16 @@ def test_frames_base_offset_and_control_point_offset():
     C = pose([0.0, 0.0, 0.12])  # a 12 cm tool
     s = _settings(model, baseOffset=B[:3], controlPointOffset=C[:3])
     q0 = _start(model)
-    T0 = np.linalg.inv(B) @ planner.kin.control_point(q0, C)  # start, robot frame
+    T0 = np.linalg.inv(B) @ planner.kin.control_point(q0, as_se3(C)).homogeneous  # start, robot frame
     T1 = pose(T0[:3, 3] + [0.05, 0.1, -0.05], T0[:3, :3])
     m = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
-    pts = np.array([(np.linalg.inv(B) @ planner.kin.control_point(q, C))[:3, 3] for q in m.q])
+    pts = np.array([(np.linalg.inv(B) @ planner.kin.control_point(q, as_se3(C)).homogeneous)[:3, 3] for q in m.q])
     assert segment_distance(pts, T0[:3, 3], T1[:3, 3]).max() < PLANNED_TOL
-    end = np.linalg.inv(B) @ planner.kin.control_point(m.end, C)
+    end = np.linalg.inv(B) @ planner.kin.control_point(m.end, as_se3(C)).homogeneous
     assert np.abs(end - T1).max() < 1e-6
     up_and_turn = {"carPoint": car(pose([0, 0, 0.05], rot_z(0.2)))}
     rel = planner.plan(MotionRequest(OP.movePTPCartesianRel, up_and_turn, s), m.end)
-    end2 = np.linalg.inv(B) @ planner.kin.control_point(rel.end, C)
+    end2 = np.linalg.inv(B) @ planner.kin.control_point(rel.end, as_se3(C)).homogeneous
     assert np.abs(end2[:3, 3] - (T1[:3, 3] + [0, 0, 0.05])).max() < 1e-6  # added in the robot frame
     assert np.abs(end2[:3, :3] - rot_z(0.2) @ T1[:3, :3]).max() < 1e-6  # R_rel · R_start
 
@@ -630,7 +630,7 @@ def test_lin_is_slowed_down_for_the_joint_speed_limits():
     model = robot("iiwa")
     planner = MotionPlanner(model)
     q0 = _start(model)
-    T0 = planner.kin.control_point(q0)
+    T0 = planner.kin.control_point(q0).homogeneous
     args = {"carPoint": car(pose(T0[:3, 3] + [0.0, 0.2, 0.0], T0[:3, :3]))}
     fast = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args, _settings(model)), q0)
     vmax = np.full(7, 0.2)  # [rad/s]
@@ -673,7 +673,8 @@ def test_family_rules(name: str, op: str, code: ReturnCode):
         assert exc.code == code and code == ReturnCode.NG and "Cartesian robot cannot" in exc.comment
         return
     assert code == ReturnCode.OK
-    T0, T1 = planner.kin.control_point(q0[:model.axis_num]), planner.kin.control_point(m.end[:model.axis_num])
+    T0 = planner.kin.control_point(q0[:model.axis_num]).homogeneous
+    T1 = planner.kin.control_point(m.end[:model.axis_num]).homogeneous
     target = np.array(args["carPointT" if "carPointT" in args else "carPoint"]["carPos"])[:, 3]
     if name == "cartesian2":
         target[2] = 0.0  # J1 = X, J2 = Y: Z ignored

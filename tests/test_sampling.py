@@ -20,7 +20,7 @@ from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CartesianSpeed, LimitValue
 from jara_arm.services.planner import sampling
-from jara_arm.kinematics import Kinematics
+from jara_arm.kinematics import Kinematics, as_se3
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.sampling import BatchFk, HermiteSpline, batch_arm_angle, batch_log3
 
@@ -71,11 +71,12 @@ def check_samples(planner: MotionPlanner, motion: Any, path_pose, s: MotionSetti
     """
     n = planner.n
     B = np.eye(4) if base is None else base
+    C = None if tool is None else as_se3(tool)
     samples = motion.profile.sample(DT)
     assert len(samples.s) == len(motion.q)
     worst_p = worst_r = 0.0
     for sk, q in zip(samples.s, motion.q):
-        T = np.linalg.inv(B) @ planner.kin.control_point(q[:n], tool)
+        T = np.linalg.inv(B) @ planner.kin.control_point(q[:n], C).homogeneous
         ideal = path_pose(sk)
         worst_p = max(worst_p, float(np.linalg.norm(T[:3, 3] - ideal[:3, 3])))
         worst_r = max(worst_r, float(np.linalg.norm(pin.log3(ideal[:3, :3] @ T[:3, :3].T))))
@@ -100,11 +101,11 @@ def test_batch_fk_agrees_with_pinocchio(name: str):
     fk = BatchFk(kin)
     rng = np.random.default_rng(3)
     q = kin.lower + (kin.upper - kin.lower) * rng.random((50, model.axis_num))
-    tool = pose([0.01, -0.02, 0.15], rot([1, 2, 3], 0.4))
+    tool = as_se3(pose([0.01, -0.02, 0.15], rot([1, 2, 3], 0.4)))
     for C in (None, tool):
         pts, R, sew = fk.run(q, C)
         for k in range(len(q)):
-            T = kin.control_point(q[k], C)
+            T = kin.control_point(q[k], C).homogeneous
             assert np.abs(T[:3, 3] - pts[k]).max() < 1e-12
             assert np.abs(T[:3, :3] - R[k]).max() < 1e-12
     if kin.has_elbow:
@@ -152,12 +153,12 @@ def test_lin_half_metre_every_sample_on_the_line(iiwa: MotionPlanner, monkeypatc
     made = counting(monkeypatch)
     model, kin = iiwa.model, iiwa.kin
     q0 = np.array(model.ready_pose)
-    T0 = kin.control_point(q0)
+    T0 = kin.control_point(q0).homogeneous
     a = T0[:3, 3] + [-0.1, -0.25, 0.0]
     s = settings(model)
     first = iiwa.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(pose(a, T0[:3, :3]))}, s), q0)
     T1 = pose(a + [0.0, 0.5, 0.0], rot([0, 0, 1], 0.3) @ T0[:3, :3])  # 0.5 m and a turn
-    Ta = kin.control_point(first.end)
+    Ta = kin.control_point(first.end).homogeneous
     m = iiwa.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), first.end)
     path = made[-1]
     omega = pin.log3(Ta[:3, :3].T @ T1[:3, :3])
@@ -165,7 +166,7 @@ def test_lin_half_metre_every_sample_on_the_line(iiwa: MotionPlanner, monkeypatc
                                                             Ta[:3, :3] @ pin.exp3(u * omega)), s)
     assert len(m.q) > 2000
     assert path.ik_solves < len(m.q) / 20  # IK at knots, not at every sample
-    end = kin.control_point(m.end)
+    end = kin.control_point(m.end).homogeneous
     assert np.linalg.norm(end[:3, 3] - T1[:3, 3]) < 1e-7 and np.linalg.norm(end[:3, :3] - T1[:3, :3]) < 1e-6
     # The arm angle moves linearly along the path (start's to target's: both the start's here).
     psi = np.array([kin.elbow_angle(q) for q in m.q[::50]])
@@ -177,7 +178,7 @@ def test_circ_half_circle_every_sample_on_the_circle(iiwa: MotionPlanner, monkey
     made = counting(monkeypatch)
     model, kin = iiwa.model, iiwa.kin
     q0 = np.array(model.ready_pose)
-    T0 = kin.control_point(q0)
+    T0 = kin.control_point(q0).homogeneous
     p0, R0 = T0[:3, 3], T0[:3, :3]
     r = 0.15
     c = p0 + [0.0, -r, 0.0]
@@ -194,7 +195,7 @@ def test_circ_half_circle_every_sample_on_the_circle(iiwa: MotionPlanner, monkey
 
     worst_p, worst_r = check_samples(iiwa, m, ideal, s)
     assert made[-1].ik_solves < len(m.q) / 20
-    pts = np.array([kin.control_point(q[:7])[:3, 3] for q in m.q])
+    pts = np.array([kin.control_point(q[:7]).translation for q in m.q])
     radial = np.linalg.norm(pts[:, :2] - c[:2], axis=1) - r
     assert np.hypot(radial, pts[:, 2] - c[2]).max() < PLANNED_POS
     print(f"CIRC: {len(m.q)} samples, {made[-1].ik_solves} IK solves, worst {worst_p:.2e} m, {worst_r:.2e} rad")
@@ -207,7 +208,7 @@ def test_lin_with_frames_and_tight_soft_limits(iiwa: MotionPlanner):
     C = pose([0.0, 0.02, 0.12], rot([1, 0, 0], 0.3))
     s = settings(model, baseOffset=B[:3], controlPointOffset=C[:3])
     q0 = np.array(model.ready_pose)
-    T0 = np.linalg.inv(B) @ kin.control_point(q0, C)
+    T0 = np.linalg.inv(B) @ kin.control_point(q0, as_se3(C)).homogeneous
     T1 = pose(T0[:3, 3] + [0.1, 0.15, -0.1], rot([1, 1, 0], 0.4) @ T0[:3, :3])
     req = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s)
     free = iiwa.plan(req, q0)
@@ -230,7 +231,7 @@ def test_slowdown_reuses_the_joint_path(iiwa: MotionPlanner, monkeypatch: pytest
     made = counting(monkeypatch)
     model, kin = iiwa.model, iiwa.kin
     q0 = np.array(model.ready_pose)
-    T0 = kin.control_point(q0)
+    T0 = kin.control_point(q0).homogeneous
     T1 = pose(T0[:3, 3] + [0.0, 0.2, 0.0], T0[:3, :3])
     s = settings(model, maxSpeedJoint=(0.2,) * 7)
     m = iiwa.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
@@ -247,11 +248,11 @@ def test_other_families_every_sample_on_the_line(name: str):
     grip = [model.gripper_limits.upper] if model.has_gripper else []
     q0 = np.array(list(model.ready_pose) + grip)
     n = model.axis_num
-    T0 = planner.kin.control_point(q0[:n])
+    T0 = planner.kin.control_point(q0[:n]).homogeneous
     a, b = T0[:3, 3], T0[:3, 3] + [0.03, 0.08, -0.03]
     s = settings(model)
     m = planner.plan(MotionRequest(OP.moveLinearCartesianRel, {"carPoint": car(pose(b - a))}, s), q0)
-    pts = np.array([planner.kin.control_point(q[:n])[:3, 3] for q in m.q])
+    pts = np.array([planner.kin.control_point(q[:n]).translation for q in m.q])
     d = b - a
     u = np.clip((pts - a) @ d / (d @ d), 0.0, 1.0)
     assert np.linalg.norm(pts - (a + u[:, None] * d), axis=1).max() < PLANNED_POS

@@ -19,6 +19,7 @@ from collections.abc import Callable
 from typing import TypeVar
 
 import numpy as np
+import pinocchio as pin
 import zenoh
 
 from jara_arm.kinematics import Kinematics, hg_to_se3
@@ -90,7 +91,7 @@ class Monitor:
         self._settings: MotionSettings | None = None
         self._judged: tuple[object, ...] | None = None  # the (joints, limits, settings) judged last
         self._settings_seq = 0  # counts MotionSettings received
-        self._robot_from_arm = np.eye(4)  # inv(B): arm frame -> robot frame
+        self._base = pin.SE3.Identity()  # B: robot frame seen from the arm frame
         self._tool = np.zeros(3)  # [m] control point in the flange frame (translation of C)
         self._n = n
         self.watches = {s: ServiceWatch(s, health) for s in (Service.SERVO, Service.PLANNER, Service.COMMAND)}
@@ -294,8 +295,7 @@ class Monitor:
             return
         # Control point in the robot frame: inv(B) · T_flange(q) · C (its position only).
         flange = self._kinematics.fk(np.asarray(pos[: self._n], dtype=float))
-        arm_p = flange[:3, :3] @ self._tool + flange[:3, 3]
-        p = self._robot_from_arm[:3, :3] @ arm_p + self._robot_from_arm[:3, 3]
+        p = self._base.actInv(flange.act(self._tool))
         axis = self._cartesian.update(p)
         if axis is not None:
             lim = self._cartesian.limit(axis)
@@ -309,8 +309,8 @@ class Monitor:
         self._settings_seq += 1
         if old is None or not (np.array_equal(old.baseOffset, s.baseOffset)
                                and np.array_equal(old.controlPointOffset, s.controlPointOffset)):
-            self._robot_from_arm = np.linalg.inv(hg_to_se3(s.baseOffset))
-            self._tool = np.asarray(s.controlPointOffset, dtype=float)[:, 3].copy()
+            self._base = hg_to_se3(s.baseOffset)
+            self._tool = hg_to_se3(s.controlPointOffset).translation.copy()
             self._cartesian.reset()  # new frames: the next sample only says where the arm is
         self._cartesian.set_limits(s.softLimitCartesian)
 

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from jara_arm.kinematics import Kinematics, arm_to_robot, se3_to_hg
+from jara_arm.kinematics import Kinematics, arm_to_robot, as_se3, se3_to_hg
 from jara_arm.robots import Family, RobotModel
 from jara_arm.schema.types import CarPosWithElbow, HgMatrix, LimitValue
 
@@ -54,7 +54,7 @@ def reach_box(radius: float, base_offset: HgMatrix) -> tuple[LimitValue, LimitVa
     The arm base origin in the robot frame is ``inv(B)`` applied to the origin;
     an axis-aligned cube of half-size ``radius`` holds the ball whatever B's rotation.
     """
-    x, y, z = (float(c) for c in arm_to_robot(np.eye(4), base_offset)[:3, 3])
+    x, y, z = (float(c) for c in as_se3(base_offset, "base offset").actInv(np.zeros(3)))
     return (LimitValue(x + radius, x - radius), LimitValue(y + radius, y - radius),
             LimitValue(z + radius, z - radius))
 
@@ -80,8 +80,8 @@ class CartesianFeedback:
         ``joints`` [rad or m] may include the gripper axis after the arm axes; it is ignored.
         """
         q = np.asarray(joints[: self.robot.axis_num], dtype=float)
-        t_arm = self.kinematics.control_point(q, control_point_offset)
-        hg = se3_to_hg(arm_to_robot(t_arm, base_offset))
+        t_arm = self.kinematics.control_point(q, as_se3(control_point_offset, "tool"))
+        hg = se3_to_hg(arm_to_robot(t_arm, as_se3(base_offset, "base offset")))
         if self.robot.family is Family.SCARA:
             hg[:, :3] = _about_z(hg[:, :3])
         # Re-orthonormalise: float error must not make the reply fail the codec's rotation check.

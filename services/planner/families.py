@@ -31,7 +31,7 @@ which parts of the commanded pose count:
     target, and each sample of a LIN / CIRC path, whose orientation is
     interpolated as commanded) is first turned about ``X_p`` by the least
     angle that brings its approach axis into the arm plane
-    (:func:`reachable`), then solved exactly (full mask). The position is
+    (:func:`reachable`, :func:`reachable_pose`), then solved exactly (full mask). The position is
     never changed. The duration counts the whole commanded rotation.
 
 * ``elbow`` -- the 7-axis arm angle (DECISIONS.md "Frames") is commanded
@@ -59,6 +59,7 @@ import enum
 import functools
 
 import numpy as np
+import pinocchio as pin
 from numpy.typing import NDArray
 
 from jara_arm.kinematics import FULL_MASK, Kinematics, Mask
@@ -144,7 +145,7 @@ def _approach_axis(kin: Kinematics) -> tuple[float, float, float]:
     """The last axis (the tool roll) as a unit vector in the flange frame (constant: it turns with the flange)."""
     q = np.asarray(kin.robot.ready_pose, dtype=float)
     w = kin.jacobian(q)[3:, -1]
-    a = kin.fk(q)[:3, :3].T @ w
+    a = kin.fk(q).rotation.T @ w
     return tuple(float(x) for x in a / np.linalg.norm(a))  # type: ignore[return-value]
 
 
@@ -156,21 +157,29 @@ def _rotate(axis: NDArray[np.float64], cos: NDArray[np.float64], sin: NDArray[np
     return np.eye(3) + sin[:, None, None] * K + (1.0 - cos)[:, None, None] * (K @ K)
 
 
+def reachable_pose(rule: CartesianRule, kin: Kinematics, target: pin.SE3, tool: pin.SE3) -> pin.SE3:
+    """One control-point pose (arm base frame) as IK must meet it: :func:`reachable` of a batch of one."""
+    if rule.orientation is not Orientation.ARM_PLANE:
+        return target
+    T = reachable(rule, kin, target.homogeneous[None], tool)[0]
+    return pin.SE3(T[:3, :3], T[:3, 3])
+
+
 def reachable(rule: CartesianRule, kin: Kinematics, targets: NDArray[np.float64],
-              tool: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``targets`` (4x4 or (N, 4, 4) control-point poses, arm base frame) as IK must meet them.
+              tool: pin.SE3) -> NDArray[np.float64]:
+    """``targets`` ((N, 4, 4) control-point poses, arm base frame) as IK must meet them.
 
     Identity except for ``ARM_PLANE``: each orientation turned about the arm-plane X axis
     ``X_p`` by the least angle that puts the approach axis into the arm plane (module docstring).
     The plane goes through the flange, which moves with the orientation when the control
-    point is off the flange axis; a few fixed-point rounds settle it.
+    point is off the flange axis; a few fixed-point rounds settle it. A batch stays an
+    array for speed; ``tool`` (the control point offset C) enters it as its rotation and translation.
     """
     if rule.orientation is not Orientation.ARM_PLANE:
         return targets
-    single = targets.ndim == 2
-    T = np.array(targets[None] if single else targets, dtype=float)
+    T = np.array(targets, dtype=float)
     a_f = np.array(_approach_axis(kin))
-    rc, tc = tool[:3, :3], tool[:3, 3]
+    rc, tc = tool.rotation, tool.translation
     r_cmd = T[:, :3, :3] @ rc.T  # commanded flange orientations
     a = r_cmd @ a_f  # commanded approach axes
     r_flange = r_cmd
@@ -192,4 +201,4 @@ def reachable(rule: CartesianRule, kin: Kinematics, targets: NDArray[np.float64]
         if done or not tc.any():
             break
     T[:, :3, :3] = r_flange @ rc
-    return T[0] if single else T
+    return T

@@ -21,9 +21,11 @@ A normalised parameter (rather than metres) keeps pure-rotation moves and
 joint moves on the same footing; the physical lengths are exposed as
 ``translation_length`` [m] and ``rotation_angle`` [rad].
 
-Poses are 4x4 homogeneous transforms (numpy arrays); a 3x4 ``HgMatrix`` is
-accepted and completed with the row ``[0, 0, 0, 1]``.  Orientation moves the
-short way from ``R0`` to ``R1``: ``R(u) = R0 · exp3(u · log3(R0ᵀ R1))``.
+The endpoints are given as ``pin.SE3`` (a 4x4 homogeneous transform or a 3x4
+``HgMatrix`` is accepted too); inside, and in what :meth:`sample` returns, poses
+are 4x4 numpy arrays: a sampled path is a vectorised batch of N poses, kept as
+an (N, 4, 4) array for speed.  Orientation moves the short way from ``R0`` to
+``R1``: ``R(u) = R0 · exp3(u · log3(R0ᵀ R1))``.
 
 The endpoints are returned bit-exactly (``at(0)`` is the start, ``at(length)``
 the target) so that a motion ends exactly on its commanded target.
@@ -103,9 +105,9 @@ def _fraction(s: ArrayLike, length: float) -> NDArray[np.float64]:
     return np.clip(u, 0.0, 1.0)
 
 
-def _as_pose(T: ArrayLike, name: str) -> NDArray[np.float64]:
-    """A validated 4x4 homogeneous transform (copy); accepts a 3x4 HgMatrix."""
-    a = np.array(T, dtype=float)
+def _as_pose(T: ArrayLike | pinocchio.SE3, name: str) -> NDArray[np.float64]:
+    """A validated 4x4 homogeneous transform (copy) of a ``pin.SE3``, a 4x4 or a 3x4 HgMatrix."""
+    a = T.homogeneous if isinstance(T, pinocchio.SE3) else np.array(T, dtype=float)
     if a.shape == (3, 4):
         a = np.vstack([a, [0.0, 0.0, 0.0, 1.0]])
     if a.shape != (4, 4):
@@ -229,6 +231,7 @@ class CartesianLine:
 
     Position ``p(u) = p0 + u·(p1 - p0)`` [m]; orientation
     ``R(u) = R0 · exp3(u · log3(R0ᵀ R1))``; ``u = s / length`` in [0, 1].
+    ``T0``, ``T1``: ``pin.SE3`` (or 4x4 / 3x4 arrays), kept as read-only 4x4 arrays.
     """
 
     T0: NDArray[np.float64]
@@ -278,7 +281,8 @@ class CartesianArc:
     Position at ``u = s / length``: ``center + radius·(cos(uφ) e1 + sin(uφ) e2)``
     with ``φ = sweep_angle``, i.e. uniform in arc length.  Orientation goes from
     ``R0`` to ``R1`` with the same ``u`` (the via orientation is ignored,
-    DECISIONS.md).  ``via`` may be a pose or a 3-vector [m].
+    DECISIONS.md).  ``T0``, ``T1``: ``pin.SE3`` (or 4x4 / 3x4 arrays), kept as
+    read-only 4x4 arrays; ``via`` is a 3-vector [m] (or a 4x4 / 3x4 pose).
 
     Raises :class:`PathGeometryError` when two points are closer than
     :data:`ARC_TOLERANCE` [m] or the three are collinear (a point lies within

@@ -43,9 +43,10 @@ import math
 from collections.abc import Callable
 
 import numpy as np
+import pinocchio as pin
 from numpy.typing import NDArray
 
-from jara_arm.kinematics import Kinematics, KinematicsError, hg_to_se3
+from jara_arm.kinematics import Kinematics, KinematicsError, arm_to_robot, hg_to_se3
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema.codes import ReturnCode
@@ -97,16 +98,20 @@ class PlanRefused(JaraArmError):
 
 @dataclasses.dataclass(frozen=True)
 class _Frames:
-    """The settings' frames as 4x4 matrices."""
+    """The settings' frames, decoded from the wire once per motion."""
 
-    base: NDArray[np.float64]  # B: robot frame seen from the arm frame
-    base_inv: NDArray[np.float64]
-    tool: NDArray[np.float64]  # C: control point in the flange frame
+    base: pin.SE3  # B: robot frame seen from the arm frame
+    tool: pin.SE3  # C: control point in the flange frame
+
+    def to_robot(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Arm-frame points (N, 3) [m] in the robot frame: inv(B) on a batch, as an array for speed."""
+        inv = self.base.inverse()
+        return points @ inv.rotation.T + inv.translation
 
 
 def _frames(settings: MotionSettings, *, planar: bool = False) -> _Frames:
-    base = np.eye(4) if planar else hg_to_se3(settings.baseOffset)
-    return _Frames(base, np.linalg.inv(base), hg_to_se3(settings.controlPointOffset))
+    base = pin.SE3.Identity() if planar else hg_to_se3(settings.baseOffset)
+    return _Frames(base, hg_to_se3(settings.controlPointOffset))
 
 
 def _yaw_only(r_delta: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -255,39 +260,38 @@ class MotionPlanner:
 
     # ------------------------------------------------------------------ poses
 
-    def control_pose(self, q_arm: Joints, frames: _Frames) -> NDArray[np.float64]:
-        """Control point pose (4x4) in the robot frame at arm joints ``q_arm``."""
-        return frames.base_inv @ self.kin.control_point(q_arm, frames.tool)
+    def control_pose(self, q_arm: Joints, frames: _Frames) -> pin.SE3:
+        """Control point pose in the robot frame at arm joints ``q_arm``."""
+        return arm_to_robot(self.kin.control_point(q_arm, frames.tool), frames.base)
 
     def _path_box(self, s: MotionSettings, q: Joints, frames: _Frames, what: str) -> None:
         """Cartesian soft-limit check of a joint-space path, at every sample."""
         if np.all(q[0, :self.n] == q[-1, :self.n]):
             return  # the arm does not move (gripper only, or already there)
-        pts = self._fk.run(q[:, :self.n], frames.tool)[0]
-        pts = pts @ frames.base_inv[:3, :3].T + frames.base_inv[:3, 3]
-        self._check_box(s, pts, what)
+        self._check_box(s, frames.to_robot(self._fk.run(q[:, :self.n], frames.tool)[0]), what)
 
-    def _target(self, cp: CarPosWithElbow, start_pose: NDArray[np.float64], relative: bool,
-                rule: CartesianRule) -> NDArray[np.float64]:
-        """The commanded pose (4x4, robot frame; arm frame for ``planar``) after the family rule."""
+    def _target(self, cp: CarPosWithElbow, start_pose: pin.SE3, relative: bool,
+                rule: CartesianRule) -> pin.SE3:
+        """The commanded pose (robot frame; arm frame for ``planar``) after the family rule."""
         if cp.structFlag != 0:
             raise PlanRefused(ReturnCode.VALUE_ERR,
                               f"structFlag {cp.structFlag}: {self.model.name} defines no posture flags; "
                               "use 0 (the IK solution nearest to the start joints)")
         cmd = hg_to_se3(cp.carPos)
-        r0, p0 = start_pose[:3, :3], start_pose[:3, 3]
-        T = np.eye(4)
+        r0, p0 = start_pose.rotation, start_pose.translation
         if relative:
-            T[:3, 3] = p0 + cmd[:3, 3]
-            T[:3, :3] = cmd[:3, :3] @ r0
+            # The command acts in the frame at the start point with the robot frame's axes:
+            # its translation along the robot axes, its rotation about them (R_rel · R_start).
+            at_start = pin.SE3(np.eye(3), p0)
+            T = at_start * cmd * at_start.actInv(start_pose)
         else:
-            T[:] = cmd
+            T = cmd
         if rule.orientation is Orientation.KEEP:
-            T[:3, :3] = r0
+            T = pin.SE3(r0, T.translation)
         elif rule.orientation is Orientation.YAW:
-            T[:3, :3] = _yaw_only(T[:3, :3] @ r0.T) @ r0
+            T = pin.SE3(_yaw_only(T.rotation @ r0.T) @ r0, T.translation)
         if rule.planar:
-            T[2, 3] = p0[2]
+            T = pin.SE3(T.rotation, np.array([*T.translation[:2], p0[2]]))
         return T
 
     def _elbow_target(self, cp: CarPosWithElbow, start: Joints, relative: bool,
@@ -333,10 +337,10 @@ class MotionPlanner:
         rule = self._rule(CartesianKind.LINEAR, req.op)
         frames = _frames(s, planar=rule.planar)
         T1 = self._target(cp, self.control_pose(start[:self.n], frames), relative, rule)
-        self._check_box(s, T1[None, :3, 3], req.op)
+        self._check_box(s, T1.translation[None], req.op)
         _, elbow = self._elbow_target(cp, start, relative, rule)
         lo, hi = self._soft_limits(s)
-        target = families.reachable(rule, self.kin, frames.base @ T1, frames.tool)
+        target = families.reachable_pose(rule, self.kin, frames.base * T1, frames.tool)
         res = self.kin.ik(target, start[:self.n], tool=frames.tool, elbow=elbow,
                           mask=rule.mask, tol_pos=IK_TOLERANCE, tol_rot=IK_TOLERANCE, lower=lo, upper=hi)
         if not res.success:
@@ -364,7 +368,7 @@ class MotionPlanner:
         Tv = self._target(via, T0, relative, rule)  # its orientation is ignored (DECISIONS.md)
         elbows = self._elbow_target(cp, start, relative, rule)
         try:
-            arc = CartesianArc(T0, Tv[:3, 3], T1)
+            arc = CartesianArc(T0, Tv.translation, T1)
         except PathGeometryError as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {exc}") from None
         return self._cartesian(req, start, arc, rule, frames, elbows)
@@ -395,7 +399,7 @@ class MotionPlanner:
             if not checked_box:
                 pts = poses[:, :3, 3]
                 if rule.planar:  # the points are in the arm frame: the limits are in the robot frame
-                    pts = pts @ frames.base_inv[:3, :3].T + frames.base_inv[:3, 3]
+                    pts = frames.to_robot(pts)
                 self._check_box(s, pts, req.op)
                 checked_box = True
             try:
@@ -404,7 +408,7 @@ class MotionPlanner:
                 q = np.repeat(start[None, :], len(samples.s), axis=0)  # gripper column kept as it is
                 q[:, :self.n] = joints.joints(samples.s, self._ik_targets(poses, frames, rule))
             except Unreachable as exc:
-                p = exc.position @ frames.base_inv[:3, :3].T + frames.base_inv[:3, 3]
+                p = frames.base.actInv(exc.position)
                 raise PlanRefused(ReturnCode.VALUE_ERR,
                                   f"{req.op}: unreachable at {100.0 * exc.s / path.length:.0f} % of the path "
                                   f"(control point at [{p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}] m): no IK solution "
@@ -428,8 +432,8 @@ class MotionPlanner:
     def _ik_targets(self, poses: NDArray[np.float64], frames: _Frames,
                     rule: CartesianRule) -> NDArray[np.float64]:
         """Robot-frame path poses (N, 4, 4) as IK must meet them: arm frame, family rule applied."""
-        if not np.array_equal(frames.base, np.eye(4)):
-            poses = np.einsum("ij,njk->nik", frames.base, poses)
+        if frames.base != pin.SE3.Identity():  # B · T on the batch, as an array for speed
+            poses = np.einsum("ij,njk->nik", frames.base.homogeneous, poses)
         return families.reachable(rule, self.kin, poses, frames.tool)
 
     def _path_joints(self, path: CartesianLine | CartesianArc, start: Joints, frames: _Frames,

@@ -26,8 +26,9 @@ kinematics, and where one is off the path, the knot interval around it is split
   knot, which is the per-sample solve -- and every returned sample is within
   the sample tolerances.
 
-Joint values are the arm axes J1..Jn [rad or m]; poses are 4x4 in the arm base
-frame unless said otherwise.
+Joint values are the arm axes J1..Jn [rad or m]; poses are in the arm base
+frame unless said otherwise: a single pose (the tool, a knot's IK target) is a
+``pin.SE3``, the targets along the path stay an (N, 4, 4) array for speed.
 """
 
 from __future__ import annotations
@@ -119,7 +120,7 @@ class BatchFk:
         self._flange_joint = int(m.frames[fid].parentJoint)
         self._elbow = kin.elbow_joint_ids  # joint ids of shoulder, elbow, wrist (7 axes), else None
 
-    def run(self, q: Array, tool: Array | None) -> tuple[Array, Array, Array | None]:
+    def run(self, q: Array, tool: pin.SE3 | None) -> tuple[Array, Array, Array | None]:
         """Control point positions (N, 3), rotations (N, 3, 3) and S, E, W points (3, N, 3) or None."""
         n = len(q)
         Rs: dict[int, Array] = {0: np.broadcast_to(np.eye(3), (n, 3, 3))}
@@ -143,7 +144,7 @@ class BatchFk:
                 Rs[jid] = (_rmul(R0, A) + np.sin(x)[:, None, None] * _rmul(R0, B)
                            + (1.0 - np.cos(x))[:, None, None] * _rmul(R0, C))
                 ps[jid] = p0 + _rvec(R0, t)
-        frame = self._flange if tool is None else self._flange * pin.SE3(tool[:3, :3], tool[:3, 3])
+        frame = self._flange if tool is None else self._flange * tool
         R0, p0 = Rs[self._flange_joint], ps[self._flange_joint]
         pts = p0 + _rvec(R0, frame.translation)
         rot = _rmul(R0, frame.rotation)
@@ -240,7 +241,7 @@ class PathJoints:
     """
 
     def __init__(self, kin: Kinematics, fk: BatchFk, targets: Callable[[Array], Array], length: float,
-                 start: Array, tool: Array | None, mask: Mask, elbows: tuple[float | None, float | None],
+                 start: Array, tool: pin.SE3 | None, mask: Mask, elbows: tuple[float | None, float | None],
                  lo: Array, hi: Array, tol: Tolerances, intervals: int) -> None:
         self.kin, self.fk, self.targets, self.length = kin, fk, targets, length
         self.tool, self.mask, self.tol = tool, mask, tol
@@ -284,7 +285,8 @@ class PathJoints:
 
     def _solve(self, s: float, T: Array, seed: Array) -> Array:
         tol = self.tol
-        res = self.kin.ik(T, np.minimum(np.maximum(seed, self.lo), self.hi), tool=self.tool,
+        target = pin.SE3(T[:3, :3], T[:3, 3])  # one pose of the batch (4x4): IK takes an SE3
+        res = self.kin.ik(target, np.minimum(np.maximum(seed, self.lo), self.hi), tool=self.tool,
                           elbow=self._elbow_at(s), mask=self.mask, tol_pos=tol.ik_pos, tol_rot=tol.ik_rot,
                           tol_elbow=tol.ik_elbow, max_iter=tol.max_iter, lower=self.lo, upper=self.hi)
         self.ik_solves += 1
@@ -297,8 +299,7 @@ class PathJoints:
 
         ``T``, ``w``: the knot's stencil of :meth:`_stencils`.
         """
-        C = self.kin.control_point(q, self.tool)
-        Rc = C[:3, :3].T
+        Rc = self.kin.control_point(q, self.tool).rotation.T
         # d(error)/ds at fixed q, error = [p_t - p, log3(R_t R^T)] (target - current, arm frame)
         de = np.concatenate([w @ T[:, :3, 3], sum(wk * pin.log3(Tk[:3, :3] @ Rc) for wk, Tk in zip(w, T) if wk)])
         J = self.kin.jacobian(q, self.tool)
