@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from . import alarms, keys, messages, operations, planner, wire_types
+from . import alarms, channels, keys, operations, wire_types
 from .codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from .wire_types import Member, StructType
 
@@ -52,9 +52,7 @@ def _operation(op: operations.Operation) -> dict[str, Any]:
 
 def build() -> dict[str, Any]:
     """The whole contract as one JSON document (JSON Schema 2020-12 plus ``x-`` tables)."""
-    defs = {t.name: t.json_schema() for t in wire_types.NAMED_TYPES}
-    defs.update({m.name: m.json_schema()
-                 for m in messages.MESSAGES + planner.MESSAGES + alarms.MESSAGES})
+    defs = channels.definitions()
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "$id": "jara_arm.schema.json",

@@ -157,6 +157,43 @@ class ArmKeys:
     def alive(self, service: Service | None = None) -> str:
         return f"{self.root}/alive/{service or '*'}"
 
+    @_key('publisher', 'the service answering the call',
+          '`CallTrace` `{t, request, reply}` of every call answered on `<served>/<op>`, only while something '
+          'subscribes', KeyEncoding.JSON,
+          examples=((Interface.COMMON.value, None), (Interface.MIDDLE.value, None),
+                    (f"Servo/{Interface.COMMON.value}", None), (f"Monitor/{Interface.COMMON.value}", None)))
+    def trace(self, served: str, op: str | None = None) -> str:
+        """``trace/<served>/<op>``: the calls answered on ``<served>/<op>`` of this arm, ``served`` being
+        the interface part of an operation queryable (:meth:`interface`, :meth:`servo_common`,
+        :meth:`monitor_common`): ``Common``, ``Middle``, ``Servo/Common`` or ``Monitor/Common``;
+        ``op=None`` gives ``/*``. Queries reach no one but their queryable: the serving service
+        publishes each call here so that a recorder sees it."""
+        if served not in self._served():
+            raise JaraArmError(f"{served!r} is not the interface part of an operation queryable; "
+                               f"valid: {', '.join(self._served())}")
+        if op is not None:
+            operation(Interface(served.rsplit("/", 1)[-1]), op)
+        return f"{self.root}/trace/{served}/{op or '*'}"
+
+    def _served(self) -> tuple[str, ...]:
+        """The interface parts of the operation queryables, relative to the arm (``Servo/Common``…)."""
+        queryables = (self.interface(Interface.COMMON), self.interface(Interface.MIDDLE), self.servo_common(),
+                      self.monitor_common())
+        return tuple(k.removeprefix(f"{self.root}/").removesuffix("/*") for k in queryables)
+
+    def traced(self, queryable: str) -> str:
+        """The :meth:`trace` key of the calls answered on ``queryable``, an operation queryable of this
+        arm (``.../Common/getState``, or ``.../Servo/Common/*`` for every operation)."""
+        served, _, op = queryable.removeprefix(f"{self.root}/").rpartition("/")
+        if not queryable.startswith(f"{self.root}/"):
+            raise JaraArmError(f"{queryable!r} is not a key of arm {self.arm!r}")
+        return self.trace(served, None if op == "*" else op)
+
+    @property
+    def every_key(self) -> str:
+        """``JARA_ARM/<arm>/**``: every key of the arm (what a recorder subscribes to)."""
+        return f"{self.root}/**"
+
     # -- internal, between services (documented in the generated schema) ----------
     @property
     @_key('publisher (internal)', 'servo', '`ServoStatus`, every 10 cycles (every 100, and on any change, while settled at rest)',
@@ -235,6 +272,11 @@ class ArmKeys:
 def any_arm_log(service: Service | None = None) -> str:
     """Logs of every arm (``JARA_ARM/*/log/<service or *>``)."""
     return f"{PREFIX}/*/log/{service or '*'}"
+
+
+def any_arm_every_key() -> str:
+    """``JARA_ARM/**``: every key of every arm."""
+    return f"{PREFIX}/**"
 
 
 def any_arm_alive() -> str:

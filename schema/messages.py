@@ -18,6 +18,23 @@ from .types import Alarm, LimitValue, Time
 from .wire_types import StructType, struct, wire
 
 
+class _WireMap(w.WireType[dict[str, Any]]):
+    """A map kept in its wire form (what a call carried), not checked here: the operation's codec checks it."""
+
+    name = "WireMap"
+
+    def decode(self, value: Any, path: str) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise WireError(path, f"expected a map, got {type(value).__name__}")
+        return value
+
+    def encode(self, value: dict[str, Any]) -> dict[str, Any]:
+        return dict(value)
+
+    def json_schema(self) -> dict[str, Any]:
+        return {"type": "object"}
+
+
 #: Lower edges of the ``LoopHealth.latenessHist`` bins [s]; the last bin is open-ended.
 LATENESS_BIN_EDGES: tuple[float, ...] = (0.0, 50e-6, 100e-6, 200e-6, 500e-6, 1e-3, 2e-3, 5e-3, 10e-3)
 _SEQ = w.DOUBLE_SEQ
@@ -102,6 +119,20 @@ class PositionBlock:
                                               "one JointPos per cycle, in order")
 
 
+@dataclasses.dataclass(frozen=True)
+class CallTrace:
+    """``trace/<served>/<op>``: one call a service answered, published only while something subscribes.
+
+    Zenoh shows a query to no one but its queryable: this is how a recorder (or
+    anyone) sees the calls of the Common and Middle interfaces and their replies.
+    """
+
+    t: float = wire(w.DOUBLE, "s", "Unix time the reply was sent")
+    request: dict[str, Any] = wire(_WireMap(), doc="the in parameters as received, in wire form ({} for none); "
+                                   'a payload that is not a map: {"payload": its text}')
+    reply: dict[str, Any] = wire(_WireMap(), doc="the reply {id, comment, <out parameters>} in wire form")
+
+
 STATE_MESSAGE = struct(StateMessage, strict=False, doc="State bits; extra members may follow.")
 ALARM_EVENT = struct(AlarmEvent, strict=False)
 LOG_RECORD = struct(LogRecord, strict=False)
@@ -109,6 +140,8 @@ SERVO_STATUS = struct(ServoStatus, strict=False, doc="Internal: servo loop statu
 LOOP_HEALTH = struct(LoopHealth, strict=False, doc="Internal: servo loop timing over the last window (about 1 s).")
 POSITION_BLOCK = struct(PositionBlock, strict=False,
                         doc="Internal: consecutive position commands for the servo's SyncFIFO, one per cycle.")
+CALL_TRACE = struct(CallTrace, strict=False, doc="A call answered on Common, Middle, Servo/Common or Monitor/Common "
+                    "and its reply, as the serving service saw them.")
 
 
 def timed_joint_pos_payload(time_ns: int, pos: list[float]) -> bytes:
@@ -174,5 +207,5 @@ def position_block_rows(payload: bytes, dof: int) -> np.ndarray:
 
 #: Every message type, for the generated JSON Schema.
 MESSAGES: tuple[StructType[Any], ...] = (
-    w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_STATUS, LOOP_HEALTH, POSITION_BLOCK,
+    w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_STATUS, LOOP_HEALTH, POSITION_BLOCK, CALL_TRACE,
 )
