@@ -10,6 +10,8 @@
     jara-arm echo [--arm ID] [--rate HZ] [--once | --count N] [--timeout S] [--show-key] KEY [Zenoh options]
     jara-arm state [--arm ID] [--once] [--period S] [Zenoh options]
     jara-arm wait [--arm ID] [--timeout S] [--poll S] CONDITION [Zenoh options]
+    jara-arm record [--arm ID]... -o FILE.mcap [--duration S] [Zenoh options]
+    jara-arm replay FILE.mcap [--speed X] [--arm ID]... [Zenoh options]
     jara-arm completion bash
 
 ``logs`` and ``alarms`` join any Zenoh network (by default as a client of
@@ -28,6 +30,7 @@ import dataclasses
 import logging
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import zenoh
 
@@ -42,6 +45,10 @@ from .client import ArmClient, ClientError
 from .completion import SHELLS, bash_script
 from .demo import run_demo
 from .echo import EchoKeyError, EchoSettings, echo_key, echo_keys, run_echo
+from .record import RecordSettings, run_record
+from .recording import RecordingError, RecordingWriter
+from .recording import info as recording_info
+from .replay import ReplaySettings, plan, run_replay
 from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
 from .services import NAMES, SERVICES, spec
 from .state_view import run_state
@@ -184,6 +191,32 @@ class _Parsers:
                                help="look this often [s] (default: 0.05)")
         _client_zenoh_arguments(self.wait)
 
+        self.record = sub.add_parser(
+            "record", help="record every sample of the arms into an MCAP file",
+            description="Subscribe to JARA_ARM/<arm>/** and write every sample (the 1 kHz streams and the traces "
+            "of the Common and Middle calls with their replies included) into an MCAP file: a channel per key, "
+            "JSON messages, a JSON Schema per channel from schema/. Shows size, count and rate every second; "
+            "stops on SIGINT/SIGTERM or after --duration.")
+        self.record.add_argument("--arm", action="append", type=_arm_id, default=[], metavar="ID",
+                                 help="an arm to record (repeatable; default: every arm)")
+        self.record.add_argument("-o", "--output", required=True, metavar="FILE.mcap", help="the file to write")
+        self.record.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
+        _client_zenoh_arguments(self.record)
+
+        self.replay = sub.add_parser(
+            "replay", help="publish a recording again, in time, where no arm runs",
+            description="Publish the messages of an MCAP recording on their keys at their recorded pace (divided "
+            "by --speed), each in its key's encoding, for echo, plot, view or any subscriber. Refuses while "
+            "a recorded arm is alive on the network. Never replays what the services subscribe to "
+            "(Servo/posCmd, Servo/posBlock, estop, Monitor/report); call traces go out as publications, "
+            "never as queries.")
+        self.replay.add_argument("file", metavar="FILE.mcap", help="a recording of jara-arm record")
+        self.replay.add_argument("--speed", type=positive_float, default=1.0, metavar="X",
+                                 help="X times the recorded pace (default: 1)")
+        self.replay.add_argument("--arm", action="append", type=_arm_id, default=[], metavar="ID",
+                                 help="an arm to replay (repeatable; default: every arm of the recording)")
+        _client_zenoh_arguments(self.replay)
+
         self.completion = sub.add_parser(
             "completion", help="print a shell completion script",
             description="Print the completion script of jara-arm (commands, options, operation names, "
@@ -196,7 +229,8 @@ class _Parsers:
 
 
 #: The subcommands, in the order of ``jara-arm --help``.
-COMMANDS = ("up", "service", "router", "logs", "alarms", "demo", "call", "echo", "state", "wait", "completion")
+COMMANDS = ("up", "service", "router", "logs", "alarms", "demo", "call", "echo", "state", "wait", "record", "replay",
+            "completion")
 
 
 def _obstacle(text: str) -> str:
@@ -360,6 +394,40 @@ def _listen(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         return run_alarms(session, signals.stop, args.arm)
 
 
+def _record(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``record``: the file opened first (a path that cannot be written: exit 2, nothing joined)."""
+    try:
+        writer = RecordingWriter(Path(args.output))
+    except RecordingError as exc:
+        print(f"jara-arm record: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    try:
+        session = _open(args, parser)
+    except SystemExit:
+        writer.close()
+        raise
+    signals = StopSignals()
+    with session:
+        return run_record(session, writer, RecordSettings(tuple(dict.fromkeys(args.arm)), args.duration),
+                          signals.stop, sys.stderr, sys.stderr.isatty())
+
+
+def _replay(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``replay``: the file read and the arms checked first (exit 2, nothing joined), then the network."""
+    path = Path(args.file)
+    settings = ReplaySettings(args.speed, tuple(dict.fromkeys(args.arm)))
+    try:
+        info = recording_info(path)
+        plan(info, settings)
+    except RecordingError as exc:
+        print(f"jara-arm replay: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    session = _open(args, parser)
+    signals = StopSignals()
+    with session:
+        return run_replay(session, path, info, settings, signals.stop, sys.stderr, sys.stderr.isatty())
+
+
 def _run(argv: list[str]) -> int:
     parsers = _Parsers()
     args = parsers.top.parse_args(argv)
@@ -371,6 +439,9 @@ def _run(argv: list[str]) -> int:
     if args.command in ("call", "echo", "state", "wait"):
         _setup_logging("WARNING")
         return _tool(args, getattr(parsers, args.command))
+    if args.command in ("record", "replay"):
+        _setup_logging("WARNING")
+        return (_record if args.command == "record" else _replay)(args, getattr(parsers, args.command))
     if args.command == "completion":
         print(bash_script(parsers.commands()), end="")
         return 0

@@ -26,6 +26,7 @@ from jara_arm.schema.operations import Operation
 
 from .entities import Entities
 from .timing import DEADLINE_GRACE
+from .trace import CallTracer
 from .wire import label
 
 log = logging.getLogger(__name__)
@@ -113,10 +114,14 @@ class QueryServer:
                 encoding = Encoding.of_request(payload, query.encoding)
                 key, body = self._answer(str(query.key_expr), payload, encoding)
                 query.reply(key, body, encoding=label(encoding))
+                self._replied(key, payload, encoding, body)
             except Exception:
                 log.exception("could not reply to %s", query.key_expr)
             finally:
                 query.drop()  # sends the final reply marker now, not at garbage collection
+
+    def _replied(self, key: str, request: bytes, encoding: Encoding, reply: bytes) -> None:
+        """After each reply (on the worker thread): nothing here."""
 
     def close(self) -> None:
         """Stop serving. The worker may sit in ``recv()``, which holds the queryable; it
@@ -133,7 +138,8 @@ class QueryServer:
 
 
 class InterfaceServer(QueryServer):
-    """Queryable ``key_all`` (``.../<Interface>/*``) answered by ``handler``, one method per operation."""
+    """Queryable ``key_all`` (``.../<Interface>/*``) answered by ``handler``, one method per operation;
+    each call answered is published on its trace key while something subscribes (:class:`CallTracer`)."""
 
     def __init__(self, session: zenoh.Session, key_all: str, table: Mapping[str, Operation],
                  handler: object, name: str = "rpc") -> None:
@@ -142,7 +148,15 @@ class InterfaceServer(QueryServer):
             raise TypeError(f"{type(handler).__name__} lacks operations {missing}")
         self._table, self._handler = table, handler
         self._base = key_all.rsplit("/", 1)[0]  # replies name the concrete key, e.g. for JARA_ARM/*/... queries
+        self._tracer = CallTracer(session, key_all)
         super().__init__(session, key_all, self._answer_operation, name)
+
+    def _replied(self, key: str, request: bytes, encoding: Encoding, reply: bytes) -> None:
+        self._tracer.publish(key, request, encoding, reply)
+
+    def close(self) -> None:
+        super().close()
+        self._tracer.close()
 
     def _answer_operation(self, key: str, payload: bytes, encoding: Encoding) -> tuple[str, bytes]:
         name = op_of(key)

@@ -1,0 +1,123 @@
+"""``jara-arm record [--arm ID]... -o FILE.mcap``: every sample under ``JARA_ARM/<arm>/`` into a recording.
+
+One subscriber on ``JARA_ARM/<arm>/**`` (``JARA_ARM/**`` without ``--arm``) takes
+every publication, the 1 kHz streams and the call traces included (the servers
+of the Common, Middle, Servo/Common and Monitor/Common interfaces publish each
+call they answer while a subscriber like this one listens: ``trace/...``).
+The subscriber's callback only stamps the sample with its arrival time and
+queues it; this command's loop transcodes and writes (``launcher/recording.py``)
+and shows the size, message count and rate on stderr every second.
+
+The recorder runs at a lower CPU priority (nice +10): on a busy machine it
+yields to the services, buffering meanwhile; a sample it could not buffer is
+counted, said and makes the exit status 1.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import os
+import threading
+import time
+from typing import TextIO
+
+import zenoh
+
+from jara_arm.schema.keys import ArmKeys, any_arm_every_key
+
+from .progress import Progress, human_size
+from .recording import RecordingWriter, to_json
+
+_CAPACITY = 500_000  #: samples buffered between the callback and the writer (~2 min of 4 arms at full rate)
+_BATCH = 2_000  #: samples written between two looks at the clock
+_NICE = 10  #: how much lower than the services the recorder runs
+_POLL = 0.005  #: [s] sleep of the loop when nothing waits
+
+
+@dataclasses.dataclass(frozen=True)
+class RecordSettings:
+    arms: tuple[str, ...] = ()  #: the arms to record; () for every arm
+    duration: float | None = None  #: [s] stop after this long; None: until SIGINT/SIGTERM
+
+
+class Inbox:
+    """What the subscriber received, with the arrival times [ns]: the callback only appends (receive
+    time is known there alone), the recorder's loop takes; beyond ``capacity`` samples are counted
+    as dropped, never waited for (Zenoh's thread must not block)."""
+
+    def __init__(self, capacity: int = _CAPACITY) -> None:
+        self.capacity = capacity
+        self.items: collections.deque[tuple[int, zenoh.Sample]] = collections.deque()
+        self.dropped = 0
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        if len(self.items) >= self.capacity:
+            self.dropped += 1
+            return
+        self.items.append((time.time_ns(), sample))
+
+
+def publish_time(sample: zenoh.Sample, received: int) -> int:
+    """The sample's Zenoh timestamp [ns since the Unix epoch], else ``received``."""
+    stamp = sample.timestamp
+    if stamp is None:
+        return received
+    ntp = stamp.get_time_as_ntp64()  # 32 bits of seconds, 32 of fraction
+    return (ntp >> 32) * 1_000_000_000 + ((ntp & 0xFFFFFFFF) * 1_000_000_000 >> 32)
+
+
+def subscriptions(arms: tuple[str, ...]) -> list[str]:
+    """The key expressions that cover every key of ``arms`` (of every arm if none)."""
+    return [ArmKeys(arm).every_key for arm in arms] if arms else [any_arm_every_key()]
+
+
+def drain(inbox: Inbox, writer: RecordingWriter, limit: int = _BATCH) -> int:
+    """Write up to ``limit`` waiting samples; how many were written."""
+    done = 0
+    while done < limit and inbox.items:
+        received, sample = inbox.items.popleft()
+        data = to_json(sample.payload.to_bytes(), sample.encoding)
+        writer.write(str(sample.key_expr), received, publish_time(sample, received), data)
+        done += 1
+    return done
+
+
+def run_record(session: zenoh.Session, writer: RecordingWriter, settings: RecordSettings, stop: threading.Event,
+               err: TextIO, tty: bool) -> int:
+    """Record until ``stop`` or ``duration``; 0, or 1 if samples were dropped. Closes ``writer``."""
+    try:
+        os.nice(_NICE)
+    except OSError:  # not allowed here: record at the same priority
+        pass
+    inbox = Inbox()
+    subs = [session.declare_subscriber(key, inbox) for key in subscriptions(settings.arms)]
+    progress = Progress(err, tty)
+    t0 = time.monotonic()
+    end = t0 + settings.duration if settings.duration is not None else None
+    last = (t0, 0)
+    try:
+        progress.say(f"recording {', '.join(subscriptions(settings.arms))} to {writer.path} (Ctrl-C stops)")
+        while not stop.is_set() and (end is None or time.monotonic() < end):
+            if not drain(inbox, writer):
+                stop.wait(_POLL)
+            now = time.monotonic()
+            if now - last[0] >= 1.0:
+                rate = (writer.count - last[1]) / (now - last[0])
+                last = (now, writer.count)
+                dropped = f", {inbox.dropped} dropped" if inbox.dropped else ""
+                progress.show(f"{writer.path}: {human_size(writer.size)}, {writer.count} messages, "
+                              f"{rate:.0f} msg/s{dropped}")
+    finally:
+        for sub in subs:
+            sub.undeclare()
+        while drain(inbox, writer):  # what came before the undeclaration
+            pass
+        writer.close()
+    progress.done(f"recorded {writer.count} messages on {writer.channels} keys in {time.monotonic() - t0:.1f} s "
+                  f"to {writer.path} ({human_size(writer.size)})")
+    if inbox.dropped:
+        progress.say(f"jara-arm record: {inbox.dropped} samples dropped: the recorder fell behind "
+                     f"({inbox.capacity} buffered at most)")
+        return 1
+    return 0
