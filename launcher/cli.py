@@ -45,7 +45,7 @@ from .client import ArmClient, ClientError
 from .completion import SHELLS, bash_script
 from .demo import run_demo
 from .echo import EchoKeyError, EchoSettings, echo_key, echo_keys, run_echo
-from .record import RecordSettings, run_record
+from .record import RecordSettings, lower_priority, run_record
 from .recording import RecordingError, RecordingWriter
 from .recording import info as recording_info
 from .replay import ReplaySettings, plan, run_replay
@@ -407,6 +407,7 @@ def _record(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         writer.close()
         raise
     signals = StopSignals()
+    lower_priority()
     with session:
         return run_record(session, writer, RecordSettings(tuple(dict.fromkeys(args.arm)), args.duration),
                           signals.stop, sys.stderr, sys.stderr.isatty())

@@ -63,8 +63,7 @@ def publish_time(sample: zenoh.Sample, received: int) -> int:
     stamp = sample.timestamp
     if stamp is None:
         return received
-    ntp = stamp.get_time_as_ntp64()  # 32 bits of seconds, 32 of fraction
-    return (ntp >> 32) * 1_000_000_000 + ((ntp & 0xFFFFFFFF) * 1_000_000_000 >> 32)
+    return int(stamp.get_time_as_ntp64().as_nanos())  # the HLC's physical time, from the Unix epoch
 
 
 def subscriptions(arms: tuple[str, ...]) -> list[str]:
@@ -83,13 +82,17 @@ def drain(inbox: Inbox, writer: RecordingWriter, limit: int = _BATCH) -> int:
     return done
 
 
-def run_record(session: zenoh.Session, writer: RecordingWriter, settings: RecordSettings, stop: threading.Event,
-               err: TextIO, tty: bool) -> int:
-    """Record until ``stop`` or ``duration``; 0, or 1 if samples were dropped. Closes ``writer``."""
+def lower_priority() -> None:
+    """Run this process below the services (nice +10): on a busy machine the recorder waits, not them."""
     try:
         os.nice(_NICE)
     except OSError:  # not allowed here: record at the same priority
         pass
+
+
+def run_record(session: zenoh.Session, writer: RecordingWriter, settings: RecordSettings, stop: threading.Event,
+               err: TextIO, tty: bool) -> int:
+    """Record until ``stop`` or ``duration``; 0, or 1 if samples were dropped. Closes ``writer``."""
     inbox = Inbox()
     subs = [session.declare_subscriber(key, inbox) for key in subscriptions(settings.arms)]
     progress = Progress(err, tty)

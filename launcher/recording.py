@@ -125,11 +125,12 @@ class RecordingWriter:
         self._channels: dict[str, int] = {}
         self._schemas: dict[str, int] = {}
         self.count = 0  #: messages written
+        self._size = 0  # once closed
 
     @property
     def size(self) -> int:
         """[bytes] written to the file so far (a chunk reaches it when full, about 1 MiB)."""
-        return self._stream.tell()
+        return self._size if self._stream.closed else self._stream.tell()
 
     @property
     def channels(self) -> int:
@@ -157,8 +158,9 @@ class RecordingWriter:
     def close(self) -> None:
         """Write the summary (index, statistics) and close the file."""
         try:
-            self._writer.finish()
+            self._writer.finish()  # type: ignore[no-untyped-call]  # mcap leaves it unannotated
         finally:
+            self._size = self._stream.tell()
             self._stream.close()
 
 
@@ -216,8 +218,9 @@ def read_messages(path: Path | str, keys: Sequence[str] | None = None) -> Iterat
             except ValueError as exc:
                 raise RecordingError(f"{path}: a message on {channel.topic} is not JSON: {exc}") from None
             yield Recorded(channel.topic, message.log_time * 1e-9, value)
-    except (McapError, EOFError) as exc:
-        raise RecordingError(f"{path} is damaged: {exc or type(exc).__name__}") from None
+    except (McapError, EOFError, OSError) as exc:
+        detail = "it ends in the middle of a record" if isinstance(exc, (EOFError, OSError)) else str(exc)
+        raise RecordingError(f"{path} is damaged: {detail}") from None
     finally:
         stream.close()
 
@@ -228,7 +231,7 @@ def _summary(reader: McapReader) -> Any:
         return None
     try:
         return reader.get_summary()
-    except (McapError, EOFError):
+    except (McapError, EOFError, OSError):  # OSError: shorter than a footer
         return None
 
 
