@@ -15,7 +15,8 @@ from typing import Any
 
 from . import alarms, messages, planner, wire_types
 from . import wire_types as w
-from .keys import ArmKeys, Interface, key_info
+from .keys import ArmKeys, key_info
+from .operations import Interface
 from .wire_types import StructType
 
 _DEFS_PREFIX = "#/$defs/"
