@@ -381,9 +381,10 @@ def render(feedback: Feedback, settings: PlotSettings, err: TextIO) -> int:
     tool = feedback.tool
     points = cartesian_path(Kinematics(model, seed_table=0), joints.q, tool)
     path_fig = _figure(settings.size, on_screen)
-    draw_path(path_fig, points, f"{feedback.arm} ({model.name}): "
-              f"{'control point' if tool is not None else 'flange (control point offset not known)'} "
-              f"in the arm base frame, {window}")
+    what = "control point" if tool is not None else "flange"
+    draw_path(path_fig, points, f"{feedback.arm} ({model.name}): {what}"
+              f"{'' if tool is not None else ' (control point offset not known)'} in the arm base frame, {window}",
+              what)
     path_fig.savefig(settings.path_output, dpi=DPI)
     print(f"jara-arm plot: wrote {settings.path_output}", file=err, flush=True)
     if on_screen:

@@ -67,6 +67,7 @@ def draw_joints(fig: Figure, traces: Traces, limits: JointLimits, prismatic: Seq
     n = traces.axes
     if limits.axes != n or len(prismatic) != n:
         raise ValueError(f"{n} axes of traces, {limits.axes} of limits, {len(prismatic)} of prismatic")
+    fig.set_layout_engine("constrained")  # the panels fill the figure, labels and legend included
     axes = fig.subplots(n, 3, sharex=True, squeeze=False)
     for j in range(n):
         unit = "m" if prismatic[j] else "rad"
@@ -113,10 +114,10 @@ def limit_lines(ax: Axes) -> dict[str, list[float]]:
     return found
 
 
-def draw_path(fig: Figure, points: np.ndarray, title: str) -> None:
-    """The path ``points`` (M, 3) [m] in 3D, equal scales on the three axes, start and end marked."""
+def draw_path(fig: Figure, points: np.ndarray, title: str, what: str = "control point") -> None:
+    """The path ``points`` (M, 3) [m] of ``what`` in 3D, equal scales on the three axes, start and end marked."""
     ax = fig.add_subplot(projection="3d")
-    ax.plot(points[:, 0], points[:, 1], points[:, 2], color="tab:blue", linewidth=1.2, label="control point")
+    ax.plot(points[:, 0], points[:, 1], points[:, 2], color="tab:blue", linewidth=1.2, label=what)
     ax.scatter(*points[0], color="tab:green", s=60, marker="o", label="start", depthshade=False)
     ax.scatter(*points[-1], color="tab:red", s=60, marker="s", label="end", depthshade=False)
     centre = 0.5 * (points.min(axis=0) + points.max(axis=0))

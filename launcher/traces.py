@@ -51,8 +51,8 @@ class JointLimits:
 class Traces:
     """Positions and their differences; times [s] from the first sample (of the data, not of the window).
 
-    ``vel[i]`` is between samples ``i`` and ``i + 1`` (at ``t_vel[i]``, the midpoint) and
-    ``acc[i]`` between ``vel[i]`` and ``vel[i + 1]`` (at ``t_acc[i] = t[i + 1]``); NaN next to a gap.
+    ``vel[i]`` is between samples ``i`` and ``i + 1`` (at ``t_vel[i]``, their midpoint) and
+    ``acc[i]`` between ``vel[i]`` and ``vel[i + 1]`` (at ``t_acc[i]``, the midpoint of theirs); NaN next to a gap.
     """
 
     t: np.ndarray  # (N,) [s]
@@ -110,7 +110,8 @@ def traces(tm: npt.ArrayLike, q: npt.ArrayLike, cycle: float, start: float = 0.0
         raise TraceError(f"{len(t)} sample(s) in the window {window} of the {times[-1] - times[0]:.3f} s "
                          "of samples: 3 at least are needed")
     one, vel, acc = differences(t, joints, cycle)
-    return Traces(t, joints, 0.5 * (t[:-1] + t[1:]), vel, t[1:-1], acc, int(np.count_nonzero(~one)))
+    t_vel = 0.5 * (t[:-1] + t[1:])
+    return Traces(t, joints, t_vel, vel, 0.5 * (t_vel[:-1] + t_vel[1:]), acc, int(np.count_nonzero(~one)))
 
 
 def cartesian_path(kinematics: Kinematics, q: npt.ArrayLike, tool: pin.SE3 | None = None,
