@@ -12,12 +12,15 @@
     jara-arm wait [--arm ID] [--timeout S] [--poll S] CONDITION [Zenoh options]
     jara-arm record [--arm ID]... -o FILE.mcap [--duration S] [Zenoh options]
     jara-arm replay FILE.mcap [--speed X] [--arm ID]... [Zenoh options]
+    jara-arm plot [--arm ID] (--seconds S | --from FILE.mcap) [--start S] [--end S] [--robot NAME] -o FILE.png
+                  [--path FILE.png] [--size WxH] [--no-show] [Zenoh options]
     jara-arm completion bash
 
 ``logs`` and ``alarms`` join any Zenoh network (by default as a client of
 tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM; ``call``,
 ``echo``, ``state`` and ``wait`` join it the same way (``launcher/call.py``,
-``echo.py``, ``state_view.py``, ``wait.py``).
+``echo.py``, ``state_view.py``, ``wait.py``), and ``plot`` too unless it reads a
+recording (``plot.py``).
 
 A user mistake (unknown robot, bad arm id, a port already in use…) prints one
 readable message and exits with status 2.
@@ -36,7 +39,7 @@ import zenoh
 
 from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
-from jara_arm.services.runtime.arguments import positive_float, positive_int
+from jara_arm.services.runtime.arguments import non_negative_float, positive_float, positive_int
 from jara_arm.services.runtime.timing import add_health_arguments, health_from_args
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, zenoh_config
 
@@ -216,6 +219,35 @@ class _Parsers:
         self.replay.add_argument("--arm", action="append", type=_arm_id, default=[], metavar="ID",
                                  help="an arm to replay (repeatable; default: every arm of the recording)")
         _client_zenoh_arguments(self.replay)
+        self.plot = sub.add_parser(
+            "plot", help="plot an arm's joint traces and Cartesian path to PNG (live or from a recording)",
+            description="Joint positions, velocities and accelerations against time, with the joint limits, "
+            "and the control point's path in 3D, from the arm's Servo/posFeedback: live (for --seconds, or "
+            "until Ctrl-C) or from a recording (--from). Written as two PNG files, shown on screen if there is "
+            "one.", epilog="examples: jara-arm plot --seconds 5 -o run.png; "
+            "jara-arm plot --from run.mcap --start 2 --end 4.5 -o ptp.png --size 1920x1080")
+        self.plot.add_argument("--arm", type=_arm_id, metavar="ID",
+                               help=f"the arm (default: {DEFAULT_ARM} live, the recording's only arm with --from)")
+        source = self.plot.add_mutually_exclusive_group()
+        source.add_argument("--seconds", type=positive_float, metavar="S",
+                            help="live: take the feedback for S seconds (default: until Ctrl-C)")
+        source.add_argument("--from", dest="recording", metavar="FILE.mcap",
+                            help="read the feedback from a recording of `jara-arm record`")
+        self.plot.add_argument("--start", type=non_negative_float, default=0.0, metavar="S",
+                               help="window start [s] after the first sample (default: 0)")
+        self.plot.add_argument("--end", type=non_negative_float, metavar="S",
+                               help="window end [s] after the first sample (default: the last sample)")
+        self.plot.add_argument("--robot", choices=list(ROBOTS), metavar="NAME",
+                               help=f"the arm's robot model ({', '.join(ROBOTS)}; default: from getManipInfo)")
+        self.plot.add_argument("-o", "--output", required=True, metavar="FILE.png",
+                               help="the joint figure's file")
+        self.plot.add_argument("--path", dest="path_output", metavar="FILE.png",
+                               help="the Cartesian path figure's file (default: the -o name + _path.png)")
+        self.plot.add_argument("--size", default="1600x1200", metavar="WxH",
+                               help="size of each figure [px] (default: 1600x1200)")
+        self.plot.add_argument("--no-show", dest="show", action="store_false",
+                               help="only write the files, even where there is a screen")
+        _client_zenoh_arguments(self.plot)
 
         self.completion = sub.add_parser(
             "completion", help="print a shell completion script",
@@ -230,7 +262,7 @@ class _Parsers:
 
 #: The subcommands, in the order of ``jara-arm --help``.
 COMMANDS = ("up", "service", "router", "logs", "alarms", "demo", "call", "echo", "state", "wait", "record", "replay",
-            "completion")
+            "plot", "completion")
 
 
 def _obstacle(text: str) -> str:
@@ -427,6 +459,36 @@ def _replay(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     signals = StopSignals()
     with session:
         return run_replay(session, path, info, settings, signals.stop, sys.stderr, sys.stderr.isatty())
+def _plot(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``plot``: the options checked first (exit 2, nothing read or written), then the samples from the
+    recording or from a session on the network, then the figures."""
+    # Here, not at the top: matplotlib and Pinocchio take half a second to import, which only plot pays.
+    from .plot import PlotDataError, PlotInputError, PlotSettings, collect_live, read_recording, render
+
+    try:
+        settings = PlotSettings.check(arm=args.arm, recording=args.recording, seconds=args.seconds,
+                                      start=args.start, end=args.end, output=args.output,
+                                      path_output=args.path_output, size=args.size, robot=args.robot,
+                                      show=args.show)
+    except PlotInputError as exc:
+        print(f"jara-arm plot: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    try:
+        if settings.recording is not None:
+            feedback = read_recording(settings.recording, settings.arm, sys.stderr)
+        else:
+            session = _open(args, parser)
+            signals = StopSignals()
+            with session:
+                client = ArmClient(session, settings.arm or DEFAULT_ARM, timeout=2.0)
+                try:
+                    feedback = collect_live(session, client, settings.seconds, signals.stop, sys.stderr)
+                finally:
+                    client.close()
+    except PlotDataError as exc:
+        print(f"jara-arm plot: {exc}", file=sys.stderr)
+        return 1
+    return render(feedback, settings, sys.stderr)
 
 
 def _run(argv: list[str]) -> int:
@@ -443,6 +505,9 @@ def _run(argv: list[str]) -> int:
     if args.command in ("record", "replay"):
         _setup_logging("WARNING")
         return (_record if args.command == "record" else _replay)(args, getattr(parsers, args.command))
+    if args.command == "plot":
+        _setup_logging("WARNING")
+        return _plot(args, parsers.plot)
     if args.command == "completion":
         print(bash_script(parsers.commands()), end="")
         return 0

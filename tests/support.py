@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -238,3 +239,11 @@ def launched(*args: str, timeout: float = 60.0) -> Iterator[tuple[Proc, int]]:
     finally:
         code = proc.stop(signal.SIGINT, timeout=20)
         assert code == 0, f"launcher exit {code}:\n{proc.output[-4000:]}"
+
+
+def wait_recording(recorder: Proc, timeout: float = 30.0) -> None:
+    """Until ``jara-arm record`` shows messages written: its subscription reached the services (the servo
+    publishes Servo/posFeedback only while subscribed), so their call-trace publishers match it too."""
+    written = re.compile(r", [1-9][0-9]* messages, ")
+    wait_until(lambda: any(written.search(line) for line in recorder.lines), timeout,
+               what=f"jara-arm record writing messages; its output: {recorder.lines[-5:]}")

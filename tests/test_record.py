@@ -30,12 +30,19 @@ from mcap.reader import make_reader
 
 from jara_arm.launcher import cli
 from jara_arm.launcher.record import RecordSettings, run_record
-from jara_arm.launcher.recording import (Recorded, RecordingError, RecordingWriter, arms, info, keys,
-                                         read_messages, to_json)
+from jara_arm.launcher.recording import (
+    Recorded,
+    RecordingError,
+    RecordingWriter,
+    arms,
+    info,
+    keys,
+    read_messages,
+    to_json,
+)
 from jara_arm.launcher.replay import ReplaySettings, replayed, run_replay
 from jara_arm.robots import robot
 from jara_arm.schema import codec
-from jara_arm.schema import wire_types as w
 from jara_arm.schema.channels import MESSAGE_TYPES, channel_schema, message_type
 from jara_arm.schema.codes import AlarmCode, ReturnCode, StateBit
 from jara_arm.schema.encoding import Encoding
@@ -48,7 +55,7 @@ from jara_arm.services.runtime.rpc import InterfaceServer, ok
 from jara_arm.services.runtime.wire import label
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import Client, Proc, client_session, endpoint, free_port, launched, wait_until
+from .support import Client, Proc, client_session, endpoint, free_port, launched, wait_recording, wait_until
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 T0 = 1_800_000_000_000_000_000  # [ns] a Unix time for hand-made recordings
@@ -375,7 +382,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
         client = Client(session)
         client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR))
         with recorder(port, path) as rec:
-            time.sleep(1.0)  # the servers' trace publishers hear of the recorder
+            wait_recording(rec)
             t_start = time.time()
             assert client.common(OP.servoON).ok
             assert client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
@@ -387,7 +394,6 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
             session.put(client.keys.estop, b"")
             wait_until(lambda: client.state() & StateBit.ALARM, 10, what="the e-stop alarm")
             assert client.common(OP.clearAlarms).ok
-            time.sleep(1.0)
             t_end = time.time()
             code = rec.stop(signal.SIGINT)
             assert code == 0, rec.output
