@@ -386,6 +386,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
             t_start = time.time()
             assert client.common(OP.servoON).ok
             assert client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
+            assert client.middle(OP.setSpeedCartesian, {"spdRatio": 100}).ok
             assert client.middle(OP.movePTPJointAbs, {"jointPoints": target}).ok
             client.wait_idle()
             down = CarPosWithElbow(hg_matrix(translation=(0.0, -0.05, -0.05)), 0.0, 0)
