@@ -193,7 +193,6 @@ class ArmScene:
         self._tool = pin.SE3.Identity()
         self._joints: tuple[float, ...] | None = None
         self._gone = False
-        self.show_joints(tuple(model.ready_pose) + ((model.gripper_limits.upper,) if model.gripper_limits else ()))
         self._links_visible(False)  # until the first feedback says where they are
 
     def _add_shape(self, name: str, s: Shape) -> viser.SceneNodeHandle:
@@ -253,7 +252,7 @@ class ArmScene:
         if self._limits is not None:
             self._limits.remove()
         self._limits = self.scene.add_line_segments(f"{self.root}/arm/robot/soft_limits", box_edges(centre, size),
-                                                    LIMIT_COLOR, thickness=3.0, thickness_units="screen")
+                                                    LIMIT_COLOR, thickness=2.0, thickness_units="screen")
         tool = hg_to_se3(settings.controlPointOffset)
         if not tool.isApprox(self._tool):
             self._tool = tool
@@ -271,6 +270,11 @@ class ArmScene:
             segments = np.stack([pts[:-1], pts[1:]], axis=1)
             self._path = self.scene.add_line_segments(f"{self.root}/arm/path", segments, PATH_COLOR,
                                                       thickness=4.0, thickness_units="screen")
+
+    @property
+    def path_shown(self) -> bool:
+        """Whether a motion's path is drawn."""
+        return self._path is not None
 
     def show_label(self, text: str) -> None:
         self._label.text = text

@@ -302,6 +302,8 @@ class View:
             self.server.stop()
             raise ViewError(f"cannot serve the page on {settings.host}:{settings.port}: in use")
         self.server.scene.set_up_direction("+z")
+        self.server.initial_camera.position = (1.25, -0.95, 0.85)  # [m] the first arm from the front, a bit above
+        self.server.initial_camera.look_at = (0.15, 0.1, 0.3)
         self.server.scene.add_grid("/ground", width=4.0, height=4.0 + SPACING * 4, cell_size=0.25,
                                    section_size=1.0)
         self._panel = self.server.gui.add_markdown("waiting for arms (liveliness tokens "
