@@ -21,6 +21,7 @@ import enum
 import functools
 from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import numpy.typing as npt
@@ -88,7 +89,7 @@ def _shape(obj: pin.GeometryObject, link: str) -> Shape:
 @functools.lru_cache(maxsize=64)
 def _mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(vertices [m], faces) of a mesh file, loaded once per process."""
-    mesh = trimesh.load(str(path), force="mesh")
+    mesh = cast(trimesh.Trimesh, trimesh.load(str(path), force="mesh"))  # force="mesh": one Trimesh
     return np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.uint32)
 
 
@@ -235,12 +236,13 @@ class ArmScene:
 
     def show_world(self, world: ServoWorld) -> None:
         """The obstacles of the servo's world, and the arm frame where the servo placed it."""
-        self._arm.position = tuple(world.basePosition)
+        self._arm.position = np.asarray(world.basePosition, dtype=float)
         for handle in self._obstacles:
             handle.remove()
         self._obstacles = [
             self.scene.add_box(f"{self.root}/obstacles/{i}", color=OBSTACLE_COLOR, opacity=0.6,
-                               dimensions=tuple(2.0 * h for h in box.halfExtents), position=tuple(box.position))
+                               dimensions=2.0 * np.asarray(box.halfExtents, dtype=float),
+                               position=np.asarray(box.position, dtype=float))
             for i, box in enumerate(world.obstacles)]
 
     def show_settings(self, settings: MotionSettings) -> None:

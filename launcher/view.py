@@ -35,7 +35,7 @@ from typing import Any, TextIO
 import viser
 import zenoh
 
-from jara_arm.robots import ROBOTS, RobotModelError
+from jara_arm.robots import RobotModelError
 from jara_arm.robots import robot as robot_model
 from jara_arm.schema import codec
 from jara_arm.schema.alarms import ALARM_LIST, AlarmList, format_code
@@ -361,7 +361,7 @@ def run_view(session: zenoh.Session, settings: ViewSettings, stop: threading.Eve
     """Serve the page until ``stop``; ViewError if it cannot be served."""
     view = View(session, settings)
     try:
-        print(f"jara-arm view: {view.url} (robots: {', '.join(ROBOTS)}; Ctrl-C to stop)", file=out, flush=True)
+        print(f"jara-arm view: {view.url} (every arm on the network; Ctrl-C to stop)", file=out, flush=True)
         period = 1.0 / settings.rate
         while not stop.is_set():
             t0 = time.monotonic()

@@ -18,8 +18,11 @@ import contextlib
 import dataclasses
 import json
 import os
+import re
 import shutil
+import socket
 import subprocess
+import sys
 import threading
 import time
 import urllib.request
@@ -32,11 +35,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import zenoh
+from PIL import Image
+from websockets.sync.client import connect
 
+from jara_arm.kinematics import Kinematics
 from jara_arm.launcher import cli
+from jara_arm.launcher.client import ArmClient
 from jara_arm.launcher.scene import RobotGeometry, ShapeKind, box_edges, limit_box
 from jara_arm.launcher.view import View, ViewError, ViewSettings, check_port
-from jara_arm.kinematics import Kinematics
 from jara_arm.robots import ROBOTS, robot
 from jara_arm.schema import codec
 from jara_arm.schema.codes import StateBit
@@ -101,7 +107,8 @@ def test_the_links_follow_the_joints() -> None:
 
 
 def test_the_soft_limit_box_is_drawn_within_reach() -> None:
-    settings = _settings(robot("iiwa"), cartesian=(LimitValue(0.8, -0.2), LimitValue(1e30, -1e30), LimitValue(1.0, 0.0)))
+    settings = _settings(robot("iiwa"), cartesian=(LimitValue(0.8, -0.2), LimitValue(1e30, -1e30),
+                                                   LimitValue(1.0, 0.0)))
     centre, size = limit_box(settings)
     assert np.allclose(centre, [0.3, 0.0, 0.5]) and np.allclose(size, [1.0, 6.0, 1.0])
     edges = box_edges(centre, size)
@@ -250,7 +257,6 @@ def test_the_view_draws_a_fake_arm_at_the_page_rate(lone_session: zenoh.Session)
 
 
 def test_a_port_in_use_is_a_readable_error(lone_session: zenoh.Session) -> None:
-    import socket
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
@@ -279,7 +285,6 @@ def test_bad_view_options_exit_2(argv: list[str], message: str, monkeypatch: pyt
 
 
 def test_a_port_in_use_exits_2(capsys: pytest.CaptureFixture[str]) -> None:
-    import socket
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
@@ -310,7 +315,6 @@ class Browser:
     shows it here."""
 
     def __init__(self, workdir: Path, width: int = 1280, height: int = 800) -> None:
-        from websockets.sync.client import connect
         profile = workdir / "chromium-profile"
         argv = [chromium(), "--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                 "--hide-scrollbars", "--no-first-run", "--remote-debugging-port=0", f"--user-data-dir={profile}",
@@ -345,7 +349,6 @@ class Browser:
 
     def shot(self, out: Path) -> np.ndarray:
         """The page now, an (H, W, 3) uint8 array (also written to ``out``)."""
-        from PIL import Image
         out.write_bytes(base64.b64decode(self._call("Page.captureScreenshot", format="png")["data"]))
         return np.asarray(Image.open(out).convert("RGB"))
 
@@ -430,7 +433,7 @@ def test_the_page_needs_nothing_from_the_internet(lone_session: zenoh.Session) -
         served.close()
     assert "<html" in html
     # The client is one file (its code inside, compressed); the only URL in it is the SVG namespace.
-    assert {u for u in __import__("re").findall(r"https?://[A-Za-z0-9.\-]+", html)} <= {"http://www.w3.org"}
+    assert {u for u in re.findall(r"https?://[A-Za-z0-9.\-]+", html)} <= {"http://www.w3.org"}
 
 
 @pytest.mark.timeout(240)
@@ -465,7 +468,6 @@ class Arm:
     """The live system's client (conftest.py ``live``): servo on, at the ready pose, for each test."""
 
     def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        from jara_arm.launcher.client import ArmClient
         self.client = ArmClient(session)
         self.model = robot(robot_name)
         self.proc: Any = None  # the launcher, set by the fixture
@@ -494,7 +496,6 @@ def robot_name(request: pytest.FixtureRequest) -> str:
 @contextlib.contextmanager
 def _view_process(arm: Arm, port: int) -> Iterator[subprocess.Popen[str]]:
     """``jara-arm view`` as a process, a client of the live system, until its URL line."""
-    import sys
     proc = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", "view", "--connect", arm.endpoint,
                              "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

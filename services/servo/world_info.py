@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import zenoh
 
-from jara_arm.robots import Obstacle, RobotModel
+from jara_arm.robots import RobotModel
+from jara_arm.robots.model import Obstacle
 from jara_arm.schema import codec
 from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.keys import ArmKeys
