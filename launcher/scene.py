@@ -290,5 +290,5 @@ class ArmScene:
             handle.color = GONE_COLOR if gone else shape.color  # type: ignore[attr-defined]
 
     def remove(self) -> None:
+        """Take the arm off the page (its node and every node under it)."""
         self._world.remove()
-        self.scene.remove_by_name(self.root)

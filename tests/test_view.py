@@ -250,7 +250,11 @@ def test_the_view_draws_a_fake_arm_at_the_page_rate(lone_session: zenoh.Session)
         assert not arm.scene.path_shown
         fake.close()
         _step_for(view, 0.5, rate)
-        assert not arm.present and "gone" in arm.label()  # greyed, kept, and back when it comes back
+        assert not arm.present and "gone" in arm.label()  # greyed at its last pose, kept
+        fake = FakeArm(lone_session, "v1", "scara4")  # back, with another robot: drawn anew
+        _step_for(view, 1.0, rate)
+        assert arm.present and arm.robot == "scara4" and arm.scene.link_count == 11
+        assert list(view.arms) == ["v1"] and "gone" not in arm.label()
     finally:
         fake.close()
         view.close()
