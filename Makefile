@@ -11,7 +11,7 @@ STAMP  := $(VENV)/.installed-$(shell (cat pyproject.toml; find $(PACKAGES) -type
 ARGS   ?=
 PYTEST_ARGS ?=
 
-.PHONY: setup up test typecheck bench soak schema clean
+.PHONY: setup up test typecheck bench soak schema browser clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -46,6 +46,13 @@ bench: setup
 soak: setup
 	for n in 1 2 4; do $(BIN)/python bench/soak.py --arms $$n --minutes 10 || exit 1; \
 	  $(BIN)/python bench/soak.py --arms $$n --minutes 10 --hog || exit 1; done
+
+# Chromium for the browser tests of `jara-arm view` (tests/test_view.py), from the system's packages
+# (Debian, as root); where it cannot be installed those tests are skipped, saying so. CI runs it (.ci/run).
+browser:
+	@command -v chromium >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; } || \
+	  echo "make browser: Chromium not installed (needs root and apt-get): the browser tests will be skipped"
 
 schema: setup
 	$(BIN)/python -m jara_arm.schema.generate

@@ -14,13 +14,15 @@
     jara-arm replay FILE.mcap [--speed X] [--arm ID]... [Zenoh options]
     jara-arm plot [--arm ID] (--seconds S | --from FILE.mcap) [--start S] [--end S] [--robot NAME] -o FILE.png
                   [--path FILE.png] [--size WxH] [--no-show] [Zenoh options]
+    jara-arm view [--arm ID]... [--host ADDRESS] [--port P] [--rate HZ] [Zenoh options]
     jara-arm completion bash
 
 ``logs`` and ``alarms`` join any Zenoh network (by default as a client of
 tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM; ``call``,
 ``echo``, ``state`` and ``wait`` join it the same way (``launcher/call.py``,
 ``echo.py``, ``state_view.py``, ``wait.py``), and ``plot`` too unless it reads a
-recording (``plot.py``).
+recording (``plot.py``); ``view`` serves a web page with a live 3D view of the arms
+(``view.py``).
 
 A user mistake (unknown robot, bad arm id, a port already in use…) prints one
 readable message and exits with status 2.
@@ -57,6 +59,7 @@ from .services import NAMES, SERVICES, spec
 from .state_view import run_state
 from .supervisor import StopSignals
 from .up import ArmSpec, UpSettings, run_up
+from .view import DEFAULT_HOST, DEFAULT_PORT, DEFAULT_RATE, ViewError, ViewSettings, run_view
 from .wait import CONDITION_HELP, Condition, run_wait
 from .watch import LOG_LEVELS as RECORD_LEVELS
 from .watch import run_alarms, run_logs
@@ -248,6 +251,21 @@ class _Parsers:
         self.plot.add_argument("--no-show", dest="show", action="store_false",
                                help="only write the files, even where there is a screen")
         _client_zenoh_arguments(self.plot)
+        self.view = sub.add_parser(
+            "view", help="a web page with a live 3D view of every arm (read only)",
+            description="Serve a web page (viser; everything served by this process, nothing from the "
+            "internet) with a live 3D view of every arm on the network: links from the robot's URDF at "
+            "the servo's feedback, obstacles, Cartesian soft-limit box, base offset, control point and the "
+            "path of the running motion; state and alarms in the panel. It never moves an arm.")
+        self.view.add_argument("--arm", type=_arm_id, action="append", default=[], metavar="ID",
+                               help="only this arm (repeatable; default: every arm that comes)")
+        self.view.add_argument("--host", default=DEFAULT_HOST, metavar="ADDRESS",
+                               help=f"serve the page on this address (default: {DEFAULT_HOST}, this host only)")
+        self.view.add_argument("--port", type=_port, default=DEFAULT_PORT, metavar="P",
+                               help=f"serve the page on this TCP port (default: {DEFAULT_PORT})")
+        self.view.add_argument("--rate", type=positive_float, default=DEFAULT_RATE, metavar="HZ",
+                               help=f"page updates a second at most (default: {DEFAULT_RATE:g})")
+        _client_zenoh_arguments(self.view)
 
         self.completion = sub.add_parser(
             "completion", help="print a shell completion script",
@@ -262,7 +280,7 @@ class _Parsers:
 
 #: The subcommands, in the order of ``jara-arm --help``.
 COMMANDS = ("up", "service", "router", "logs", "alarms", "demo", "call", "echo", "state", "wait", "record", "replay",
-            "plot", "completion")
+            "plot", "view", "completion")
 
 
 def _obstacle(text: str) -> str:
@@ -271,6 +289,17 @@ def _obstacle(text: str) -> str:
         return Obstacle.parse(text).argument()
     except RobotModelError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _port(text: str) -> int:
+    """``--port`` of ``view``: a TCP port number."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (1..65535)")
+    return port
 
 
 def _arm_id(text: str) -> str:
@@ -489,6 +518,17 @@ def _plot(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         print(f"jara-arm plot: {exc}", file=sys.stderr)
         return 1
     return render(feedback, settings, sys.stderr)
+def _view(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """``view``: the page until SIGINT/SIGTERM; a page that cannot be served is a usage error (exit 2)."""
+    session = _open(args, parser)
+    signals = StopSignals()
+    with session:
+        try:
+            return run_view(session, ViewSettings(tuple(dict.fromkeys(args.arm)), args.host, args.port, args.rate),
+                            signals.stop, sys.stdout)
+        except ViewError as exc:
+            print(f"jara-arm view: {exc}", file=sys.stderr)
+            return USAGE_ERROR
 
 
 def _run(argv: list[str]) -> int:
@@ -508,6 +548,9 @@ def _run(argv: list[str]) -> int:
     if args.command == "plot":
         _setup_logging("WARNING")
         return _plot(args, parsers.plot)
+    if args.command == "view":
+        _setup_logging("WARNING")
+        return _view(args, parsers.view)
     if args.command == "completion":
         print(bash_script(parsers.commands()), end="")
         return 0

@@ -203,6 +203,13 @@ class ArmKeys:
         return f"{self.root}/Servo/status"
 
     @property
+    @_key('publisher + queryable (internal)', 'servo', '`ServoWorld` (robot model, obstacles) every second; a get '
+          'answers it too', KeyEncoding.JSON)
+    def servo_world(self) -> str:
+        """``ServoWorld`` from the servo: its robot model and obstacles, for viewers (every second, and to a get)."""
+        return f"{self.root}/Servo/world"
+
+    @property
     @_key('queryable (internal)', 'planner', '`MotionRequest` → `PlanReply`', KeyEncoding.AS_REQUEST)
     def planner_plan(self) -> str:
         """Queryable of the planner: ``MotionRequest`` -> ``PlanReply`` (schema.planner)."""
@@ -219,6 +226,13 @@ class ArmKeys:
     def planner_progress(self) -> str:
         """``PlannerProgress`` from the planner, on every change and at 10 Hz."""
         return f"{self.root}/Planner/progress"
+
+    @property
+    @_key('publisher (internal)', 'planner', '`PlannedPath`: the control point polyline of each accepted motion',
+          KeyEncoding.MSGPACK)
+    def planner_path(self) -> str:
+        """``PlannedPath`` from the planner, once per accepted motion (not on the streaming thread)."""
+        return f"{self.root}/Planner/path"
 
     @property
     @_key('publisher (internal)', 'servo', '`LoopHealth`, ~1 Hz', KeyEncoding.JSON)

@@ -133,6 +133,31 @@ class CallTrace:
     reply: dict[str, Any] = wire(_WireMap(), doc="the reply {id, comment, <out parameters>} in wire form")
 
 
+@dataclasses.dataclass(frozen=True)
+class WorldBox:
+    """A fixed box of the simulated world: what the arm can run into."""
+
+    position: tuple[float, ...] = wire(w.DOUBLE_SEQ, "m", "centre x, y, z in the world frame")
+    halfExtents: tuple[float, ...] = wire(w.DOUBLE_SEQ, "m", "half the size along x, y, z")
+
+
+WORLD_BOX = struct(WorldBox, strict=False)
+
+
+@dataclasses.dataclass(frozen=True)
+class ServoWorld:
+    """``Servo/world``: the robot model the servo runs and the world around it, for viewers.
+
+    The world frame is the simulation's; the arm frame (the URDF root) sits at
+    ``basePosition`` in it. Nothing here changes while the servo runs.
+    """
+
+    robot: str = wire(w.STRING, doc="robot model name (`--robot`, jara_arm.robots)")
+    basePosition: tuple[float, ...] = wire(w.DOUBLE_SEQ, "m", "the arm frame's origin in the world frame")
+    obstacles: tuple[WorldBox, ...] = wire(w.SeqType("WorldBoxSeq", WORLD_BOX),
+                                           doc="the model's own boxes, then the servo's --obstacle ones")
+
+
 STATE_MESSAGE = struct(StateMessage, strict=False, doc="State bits; extra members may follow.")
 ALARM_EVENT = struct(AlarmEvent, strict=False)
 LOG_RECORD = struct(LogRecord, strict=False)
@@ -142,6 +167,7 @@ POSITION_BLOCK = struct(PositionBlock, strict=False,
                         doc="Internal: consecutive position commands for the servo's SyncFIFO, one per cycle.")
 CALL_TRACE = struct(CallTrace, strict=False, doc="A call answered on Common, Middle, Servo/Common or Monitor/Common "
                     "and its reply, as the serving service saw them.")
+SERVO_WORLD = struct(ServoWorld, strict=False, doc="Internal: the servo's robot model and obstacles, Servo/world.")
 
 
 def timed_joint_pos_payload(time_ns: int, pos: list[float]) -> bytes:
@@ -208,4 +234,5 @@ def position_block_rows(payload: bytes, dof: int) -> np.ndarray:
 #: Every message type, for the generated JSON Schema.
 MESSAGES: tuple[StructType[Any], ...] = (
     w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_STATUS, LOOP_HEALTH, POSITION_BLOCK, CALL_TRACE,
+    WORLD_BOX, SERVO_WORLD,
 )

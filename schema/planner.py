@@ -135,10 +135,27 @@ class ControlReply:
     progress: PlannerProgress = wire(PLANNER_PROGRESS)
 
 
+@dataclasses.dataclass(frozen=True)
+class PlannedPath:
+    """``Planner/path``: where the control point of an accepted motion goes, for viewers.
+
+    Published once when the motion is accepted (queued); a viewer draws the one
+    whose ``motion`` is ``PlannerProgress.running``.
+    """
+
+    motion: int = wire(w.ULONG)  # the id the planner gave the motion
+    op: str = wire(w.STRING)  # IDL operation name
+    points: tuple[tuple[float, ...], ...] = wire(w.SeqType("PointSeq", w.DOUBLE_SEQ), "m",
+                                                 "control point x, y, z in the arm frame, start to end, "
+                                                 "a polyline of at most a few hundred points")
+
+
 MOTION_REQUEST = struct(MotionRequest, doc="Internal: command -> planner, Planner/plan.")
 PLAN_REPLY = struct(PlanReply, strict=False, doc="Internal: planner -> command, reply to Planner/plan.")
 CONTROL_REQUEST = struct(ControlRequest, doc="Internal: command -> planner, Planner/control.")
 CONTROL_REPLY = struct(ControlReply, strict=False, doc="Internal: planner -> command, reply to Planner/control.")
 
+PLANNED_PATH = struct(PlannedPath, strict=False, doc="Internal: planner -> viewers, Planner/path.")
+
 MESSAGES: tuple[StructType[Any], ...] = (MOTION_SETTINGS, MOTION_REQUEST, PLAN_REPLY, CONTROL_REQUEST,
-                                         CONTROL_REPLY, PLANNER_PROGRESS)
+                                         CONTROL_REPLY, PLANNER_PROGRESS, PLANNED_PATH)

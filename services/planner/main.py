@@ -38,9 +38,11 @@ from jara_arm.schema.planner import (
     CONTROL_REQUEST,
     MOTION_REQUEST,
     PLAN_REPLY,
+    PLANNED_PATH,
     PLANNER_PROGRESS,
     ControlAction,
     ControlReply,
+    PlannedPath,
     PlannerProgress,
     PlanReply,
 )
@@ -72,6 +74,7 @@ class PlannerService:
                                               congestion_control=zenoh.CongestionControl.BLOCK,
                                               priority=zenoh.Priority.REAL_TIME))
         self._progress_pub = ctx.enter(Publication(session, keys.planner_progress, express=True))
+        self._path_pub = ctx.enter(Publication(session, keys.planner_path))  # for viewers, low rate
         self._status_sub = ctx.enter(session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(1)))
         self.streamer = Streamer(model.dof, model.cmd_cycle, self._cmd_pub.put, self._put_progress,
                                  self._poll_status, lead=lead, realtime_priority=ctx.realtime_priority,
@@ -124,6 +127,9 @@ class PlannerService:
                 motion_id, progress = queued
                 log.info("motion %d %s accepted: %.3f s long, planned in %.0f ms", motion_id, req.op,
                          motion.duration, (time.perf_counter() - t0) * 1e3)
+                # On the plan worker (not the streamer): one message per motion, for viewers.
+                self._path_pub.put_message(PLANNED_PATH, PlannedPath(
+                    motion_id, req.op, tuple(tuple(p) for p in motion.preview.tolist())))
                 return PlanReply(int(ReturnCode.OK), "OK", motion_id, tuple(motion.end.tolist()),
                                  motion.duration, progress)
             log.info("%s: the queue was stopped while planning; planning again", req.op)

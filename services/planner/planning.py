@@ -76,6 +76,8 @@ IK_TOLERANCE = 1e-7
 SAMPLE_TOLERANCE = 2e-7
 #: Newton iterations per knot: a warm start needs 1-3; more means the path left the workspace.
 IK_SAMPLE_ITERATIONS = 60
+#: Points of a motion's control point polyline for viewers (``PlannedMotion.preview``, ``Planner/path``).
+PREVIEW_POINTS = 200
 #: Initial knots of a LIN / CIRC: at most this much translation [m] and rotation [rad] apart.
 KNOT_TRANSLATION = 0.02
 KNOT_ROTATION = 0.1
@@ -149,11 +151,19 @@ class MotionPlanner:
             args = codec.decode_args(op, req.args)  # wire form to typed, no second serialisation
             self._check_settings(req.settings)
             motion: Callable[..., PlannedMotion] = getattr(self, op.name)  # one method per IDL motion
-            return motion(req, start, **args)
+            planned = motion(req, start, **args)
+            return dataclasses.replace(planned, preview=self.preview(planned.q, req.settings))
         except WireError as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
         except (PathGeometryError, ProfileError, KinematicsError) as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {exc}") from None
+
+    def preview(self, q: Joints, settings: MotionSettings) -> NDArray[np.float64]:
+        """(K, 3) [m] the control point at up to ``PREVIEW_POINTS`` of the samples ``q``, evenly
+        spread, the first and the last included, in the arm frame (a polyline for viewers)."""
+        rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), PREVIEW_POINTS)).round().astype(int))
+        points: NDArray[np.float64] = self._fk.run(q[rows, :self.n], hg_to_se3(settings.controlPointOffset))[0]
+        return points
 
     # ------------------------------------------------------------------ the IDL motions, by name
 

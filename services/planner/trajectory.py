@@ -87,6 +87,9 @@ class PlannedMotion:
     profile: PathProfile  # nominal, from rest at s = 0 to rest at the end
     q: Joints  # (N, dof) joints at profile.sample(dt); q[0] is the start, q[-1] the end
     dt: float  # [s] sampling period (the servo period)
+    #: (K, 3) [m] the control point at K of the samples, start to end, in the arm frame: what a
+    #: viewer draws (``Planner/path``); empty until the planner fills it in
+    preview: NDArray[np.float64] = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def start(self) -> Joints:
@@ -108,9 +111,10 @@ class PlannedMotion:
     def __reduce__(self) -> tuple:
         # Ruckig trajectories do not pickle: the nominal profile (rest to rest) is rebuilt.
         p = self.profile
-        return (_rebuild, (self.motion, self.op, self.path, p.length, p.limits, p.s_start, self.q, self.dt))
+        return (_rebuild, (self.motion, self.op, self.path, p.length, p.limits, p.s_start, self.q, self.dt,
+                           self.preview))
 
 
 def _rebuild(motion: int, op: str, path: JointMap, length: float, limits: ProfileLimits, s_start: float,
-             q: Joints, dt: float) -> PlannedMotion:
-    return PlannedMotion(motion, op, path, move_profile(length, limits, s_start), q, dt)
+             q: Joints, dt: float, preview: NDArray[np.float64]) -> PlannedMotion:
+    return PlannedMotion(motion, op, path, move_profile(length, limits, s_start), q, dt, preview)

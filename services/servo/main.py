@@ -24,6 +24,7 @@ from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 
 from .clock import DEFAULT_RT_PRIORITY, ServoClock
 from .loop import ServoLoop
+from .world_info import WORLD_PERIOD, WorldPublisher, servo_world
 
 log = logging.getLogger("jara_arm.servo")
 
@@ -149,6 +150,10 @@ class ServoService(ArmService):
             keys = ArmKeys(loop.arm)
             common = ServoCommon(loop, MonitorLink(ctx.session, keys))
             ctx.serve(keys.servo_common(), COMMON, common, f"servo-rpc-{keys.arm}")
+            world = WorldPublisher(ctx.session, keys, servo_world(loop.model, loop.world.obstacles))
+            ctx.closing(world.close)
+            ctx.serve_key(keys.servo_world, world.answer, f"servo-world-{keys.arm}")
+            ctx.every(WORLD_PERIOD, world.publish)
             if common.refresh():  # a restarted servo knows the active alarms before it says it is up
                 log.info("active alarms from the alarm monitor: %s",
                          ", ".join(format_code(a.code) for a in loop.monitor_alarms) or "none",
