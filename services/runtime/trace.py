@@ -48,7 +48,7 @@ class CallTracer:
         self._encoding = encoding_of(trace_all)
         self._label = label(self._encoding)
         self._probe = session.declare_publisher(trace_all, encoding=self._label)  # for its matching status only
-        self._trace_keys: dict[str, str | None] = {}  # by the answered key
+        self._trace_keys: dict[str, str] = {}  # by the answered key, for the interface's own operations
 
     @property
     def listened(self) -> bool:
@@ -57,12 +57,13 @@ class CallTracer:
         return bool(status.matching)
 
     def _trace_key(self, answered: str) -> str | None:
-        if answered not in self._trace_keys:
+        key = self._trace_keys.get(answered)
+        if key is None:
             try:
-                self._trace_keys[answered] = self._keys.traced(answered)
-            except JaraArmError:  # an operation the interface lacks (answered NOT_IMPLEMENTED): no trace key
-                self._trace_keys[answered] = None
-        return self._trace_keys[answered]
+                key = self._trace_keys[answered] = self._keys.traced(answered)
+            except JaraArmError:  # an operation the interface lacks (NOT_IMPLEMENTED): no trace, nothing kept
+                return None  # (a client's made-up names must not grow the cache)
+        return key
 
     def publish(self, answered: str, request: bytes, encoding: Encoding, reply: bytes) -> None:
         """Publish the call on ``answered`` (its key) if anyone listens; never raises."""
