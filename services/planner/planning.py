@@ -398,7 +398,7 @@ class MotionPlanner:
         vt, vr = s.maxSpeedCartesian.translation, s.maxSpeedCartesian.rotation
         vmax = self._vmax(s)[:self.n]
         e0, e1 = elbows
-        elbow = {} if e0 is None or e1 is None else {
+        elbow = {} if e0 is None or e1 is None or e0 == e1 else {
             "elbow_change": e1 - e0,
             "max_elbow_speed": elbow_speed_limit(self.kin, start[:self.n], frames.tool, rule.mask, vmax, vr)}
         speed = cartesian_path_speed(path, vt, vr, s.spdRatioCartesian / 100.0, **elbow)
