@@ -15,8 +15,9 @@ Motions, all timed by one profile along one path (``profile.py``):
   x ``maxSpeedJoint`` synchronised to the slowest axis, ``accelTimeJoint``.
   A Cartesian target is solved by IK nearest to the start joints.
 * LIN / CIRC: a Cartesian line or arc of the control point, speed
-  ``spdRatioCartesian`` x ``maxSpeedCartesian`` (the slower of translation and
-  rotation sets it), ``accelTimeCartesian``; joints from IK at knots of the
+  ``spdRatioCartesian`` x ``maxSpeedCartesian`` (the slowest of translation,
+  rotation and, on a 7-axis arm, the arm angle at its own rate limit,
+  ``elbow.py``, sets it), ``accelTimeCartesian``; joints from IK at knots of the
   path and a spline in between, every servo sample checked on the path by
   forward kinematics (``sampling.py``). If the joint speeds that this implies
   exceed ``maxSpeedJoint``, the whole profile is slowed down (same accel time)
@@ -56,6 +57,7 @@ from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, JointPos
 
 from . import families
+from .elbow import elbow_speed_limit
 from .families import CartesianKind, CartesianRule, Orientation
 from .paths import CartesianArc, CartesianLine, PathGeometryError
 from .profile import (
@@ -81,6 +83,8 @@ PREVIEW_POINTS = 200
 #: Initial knots of a LIN / CIRC: at most this much translation [m] and rotation [rad] apart.
 KNOT_TRANSLATION = 0.02
 KNOT_ROTATION = 0.1
+#: ... and at most this much arm angle [rad] (7 axes): the joints turn by up to a few times as much.
+KNOT_ELBOW = 0.05
 #: Lowest speed ratio a LIN / CIRC may be slowed down to for the joint speed limits [-].
 LOWEST_SPEED_RATIO = 0.01
 #: Slowing down for joint speed aims this far below the limit [-].
@@ -392,13 +396,17 @@ class MotionPlanner:
             raise PlanRefused(ReturnCode.STATUS_ERR,
                               "Cartesian speed ratio is 0 %: call setSpeedCartesian first")
         vt, vr = s.maxSpeedCartesian.translation, s.maxSpeedCartesian.rotation
-        speed = cartesian_path_speed(path, vt, vr, s.spdRatioCartesian / 100.0)
-        if math.isinf(speed):  # the target is the start pose: nothing to do
+        vmax = self._vmax(s)[:self.n]
+        e0, e1 = elbows
+        elbow = {} if e0 is None or e1 is None or e0 == e1 else {
+            "elbow_change": e1 - e0,
+            "max_elbow_speed": elbow_speed_limit(self.kin, start[:self.n], frames.tool, rule.mask, vmax, vr)}
+        speed = cartesian_path_speed(path, vt, vr, s.spdRatioCartesian / 100.0, **elbow)
+        if math.isinf(speed):  # the target is the start pose and arm angle: nothing to do
             profile = move_profile(path.length, ProfileLimits(math.inf, math.inf, math.inf), path.length)
             return PlannedMotion(UNQUEUED, req.op, TableMap.build(np.zeros(1), start[None, :]),
                                  profile, start[None, :].copy(), self.dt)
-        lowest = cartesian_path_speed(path, vt, vr, LOWEST_SPEED_RATIO)
-        vmax = self._vmax(s)[:self.n]
+        lowest = cartesian_path_speed(path, vt, vr, LOWEST_SPEED_RATIO, **elbow)
         lo, hi = self._soft_limits(s)
         checked_box = False
         joints: PathJoints | None = None  # the joint path q(s): solved once, reused when slowing down
@@ -454,8 +462,10 @@ class MotionPlanner:
         def targets(s: NDArray[np.float64]) -> NDArray[np.float64]:
             return self._ik_targets(path.sample(s), frames, rule)
 
+        e0, e1 = elbows
+        turn = 0.0 if e0 is None or e1 is None else abs(e1 - e0)
         intervals = math.ceil(max(path.translation_length / KNOT_TRANSLATION,
-                                  path.rotation_angle / KNOT_ROTATION, 1.0))
+                                  path.rotation_angle / KNOT_ROTATION, turn / KNOT_ELBOW, 1.0))
         return PathJoints(self.kin, self._fk, targets, path.length, start[:self.n], frames.tool, rule.mask,
                           elbows, lo, hi, self._tol, intervals)
 

@@ -384,11 +384,16 @@ def cartesian_path_speed(
     max_translation_speed: float,
     max_rotation_speed: float,
     speed_ratio: float,
+    *,
+    elbow_change: float = 0.0,
+    max_elbow_speed: float = math.inf,
 ) -> float:
-    """[1/s] Max ``ds/dt``: the slower of translation and rotation sets it.
+    """[1/s] Max ``ds/dt``: the slowest of translation, rotation and arm angle sets it.
 
-    ``ratio · min(v_trans / translation_length, v_rot / rotation_angle)``,
-    ignoring a part of at most :data:`NEGLIGIBLE_MOTION`; ``inf`` if both are.
+    ``ratio · min(v_trans / translation_length, v_rot / rotation_angle, v_elbow / |elbow_change|)``,
+    ignoring a part of at most :data:`NEGLIGIBLE_MOTION`; ``inf`` if all are.  ``elbow_change`` [rad]:
+    how far a 7-axis arm's arm angle turns along the path (linearly in ``s``), ``max_elbow_speed``
+    [rad/s] its limit (``elbow.py``): a move of the elbow alone takes time too.
     """
     vt = _positive("max_translation_speed", max_translation_speed)
     vr = _positive("max_rotation_speed", max_rotation_speed)
@@ -398,6 +403,8 @@ def cartesian_path_speed(
         bounds.append(vt / path.translation_length)
     if path.rotation_angle > NEGLIGIBLE_MOTION:
         bounds.append(vr / path.rotation_angle)
+    if abs(elbow_change) > NEGLIGIBLE_MOTION:
+        bounds.append(_positive("max_elbow_speed", max_elbow_speed) / abs(elbow_change))
     if not bounds:
         return math.inf
     return ratio * min(bounds) * path.length
