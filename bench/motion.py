@@ -14,7 +14,11 @@ Measures, and prints one line each:
 * pause latency: from the ``pause`` reply to the servo consuming the first
   braking command;
 * PTP duration vs the time-optimal bound: Ruckig's synchronised time-optimal
-  duration for the same per-axis speed, acceleration and jerk limits.
+  duration for the same per-axis speed, acceleration and jerk limits;
+* the collision check's cost per motion (``services/planner/collision.py``,
+  in this process, before the services start): a PTP (J1 by 1 rad), a 0.5 m
+  LIN and a half-circle CIRC (radius 0.15 m) on iiwa and panda, median of 9,
+  with one box in the world, clear of the paths.
 
     python bench/motion.py [--n 10] [--lead-ms 12]
 """
@@ -51,6 +55,7 @@ from jara_arm.schema.planner import (
 )
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
 from jara_arm.kinematics import Kinematics
+from jara_arm.robots import Obstacle
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.profile import ProfileLimits
 from jara_arm.services.runtime.zenoh_args import zenoh_config
@@ -221,7 +226,7 @@ def in_process(b: Bench, q0: np.ndarray, a: np.ndarray, lin_args: dict, circ_arg
     """The LIN and the CIRC of :func:`cartesian` planned here, the LIN from a LIN ready pose -> its start."""
     planner = MotionPlanner(MODEL)
     R0 = b.kin.control_point(q0).rotation
-    plan = lambda op, args, q: planner.plan(MotionRequest(0, op, args, b.settings()), q)  # noqa: E731
+    plan = lambda op, args, q: planner.plan(MotionRequest(op, args, b.settings()), q)  # noqa: E731
     qa = plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)}, q0).end
     qb = plan(OP.moveLinearCartesianAbs, lin_args, qa).end
     out = []
@@ -235,6 +240,40 @@ def in_process(b: Bench, q0: np.ndarray, a: np.ndarray, lin_args: dict, circ_arg
             cpu.append(time.process_time() - c)
         out.append(f"{name} median {1e3 * float(np.median(wall)):.1f} ms (CPU {1e3 * min(cpu):.1f} ms)")
     return "planned in this process: " + ", ".join(out)
+
+
+def collision_cost() -> list[str]:
+    """The collision check alone (``MotionPlanner.collisions.check``) on a PTP, a LIN and a CIRC per robot."""
+    out = []
+    for name in ("iiwa", "panda"):
+        model = robot(name)
+        box = Obstacle((-0.6, 0.0, 0.3), (0.1, 0.1, 0.3))  # behind the arm: every pair is computed, none hits
+        planner = MotionPlanner(model, obstacles=(box,))
+        start = np.array(list(model.ready_pose) + ([model.gripper_limits.upper] if model.has_gripper else []))
+        s = MotionSettings(spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=model.rated_speed,
+                           maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=model.min_accel_time,
+                           accelTimeCartesian=model.min_accel_time_cartesian, softLimitJoint=model.hard_limits,
+                           softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
+                           controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
+        plan = lambda op, args, q: planner.plan(MotionRequest(op, args, s), q)  # noqa: E731
+        T = planner.kin.fk(np.array(model.ready_pose))
+        at = lambda d: car(T.translation + np.array(d), T.rotation)  # noqa: E731
+        q_a = plan(OP.moveLinearCartesianAbs, {"carPoint": at((0.0, -0.25, 0.0))}, start).end
+        motions = (("PTP", plan(OP.movePTPJointRel, {"jointPoints": (1.0,) + (0.0,) * (model.axis_num - 1)},
+                                start)),
+                   ("LIN 0.5 m", plan(OP.moveLinearCartesianAbs, {"carPoint": at((0.0, 0.25, 0.0))}, q_a)),
+                   ("CIRC", plan(OP.moveCircularCartesianAbs, {"carPointR": at((0.15, -0.1, 0.0)),
+                                                               "carPointT": at((0.0, 0.05, 0.0))}, q_a)))
+        costs = []
+        for what, motion in motions:
+            wall = []
+            for _ in range(9):
+                t = time.perf_counter()
+                assert planner.collisions.check(motion.q) is None
+                wall.append(time.perf_counter() - t)
+            costs.append(f"{what} ({len(motion.q)} samples) {1e3 * float(np.median(wall)):.2f} ms")
+        out.append(f"collision check, {name}: " + ", ".join(costs))
+    return out
 
 
 def pause_latency(b: Bench, n: int) -> str:
@@ -292,6 +331,8 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=10, help="repetitions of the latency measurements")
     ap.add_argument("--lead-ms", type=float, default=None, help="planner lead (default: its own)")
     args = ap.parse_args()
+    for line in collision_cost():
+        print(line)
     sp, pp = free_port(), free_port()
     servo = spawn(Service.SERVO, sp)
     extra = ["--connect", f"tcp/127.0.0.1:{sp}"] + (["--lead-ms", str(args.lead_ms)] if args.lead_ms else [])

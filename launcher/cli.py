@@ -1,7 +1,8 @@
 """``jara-arm``: run the arm services on this host, one of them, or a bare Zenoh router.
 
-    jara-arm up [--arm ID[:ROBOT]]... [--robot NAME] [--demo] [--obstacle X,Y,Z,HX,HY,HZ]... [--listen ENDPOINT]...
-                [--connect ENDPOINT]... [--config ZENOH_CONFIG_FILE] [--multicast] [--log-level LEVEL]
+    jara-arm up [--arm ID[:ROBOT]]... [--robot NAME] [--demo] [--obstacle X,Y,Z,HX,HY,HZ]... [--hidden-obstacle ...]...
+                [--listen ENDPOINT]... [--connect ENDPOINT]... [--config ZENOH_CONFIG_FILE] [--multicast]
+                [--log-level LEVEL]
     jara-arm service NAME [the service's own arguments; see jara-arm service NAME --help]
     jara-arm router [--listen ENDPOINT]... [--connect ENDPOINT]... [--config FILE] [--multicast]
     jara-arm logs [--arm ID] [--service NAME] [--level LEVEL] [Zenoh options]
@@ -90,8 +91,13 @@ class _Parsers:
                              help="once ready, drive every arm through `jara-arm demo`")
         self.up.add_argument("--obstacle", action="append", default=[], type=_obstacle,
                              metavar="X,Y,Z,HX,HY,HZ",
-                             help="a fixed box in every arm's simulated world: centre and half extents "
-                             "[m] (repeatable)")
+                             help="a fixed box in every arm's simulated world, which every motion keeps "
+                             "clear of: centre and half extents [m] (repeatable)")
+        self.up.add_argument("--hidden-obstacle", action="append", default=[], type=_obstacle,
+                             metavar="X,Y,Z,HX,HY,HZ",
+                             help="a box in the simulated world that the planners are not told of (an "
+                             "unmodelled obstacle, as for the overload alarm): centre and half extents [m] "
+                             "(repeatable)")
         _log_level(self.up)
         _router_zenoh_arguments(self.up)
         add_health_arguments(self.up)
@@ -284,7 +290,7 @@ COMMANDS = ("up", "service", "router", "logs", "alarms", "demo", "call", "echo",
 
 
 def _obstacle(text: str) -> str:
-    """``--obstacle`` of ``up``: checked here, passed on to the servos as written."""
+    """``--obstacle`` and ``--hidden-obstacle`` of ``up``: checked here, passed on to the services as written."""
     try:
         return Obstacle.parse(text).argument()
     except RobotModelError as exc:
@@ -383,7 +389,7 @@ def _up_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> U
             parser.error(f"--arm {item}: arm {arm!r} is given twice")
         arms.append(ArmSpec(arm, robot))
     return UpSettings(tuple(arms), _router_settings(args, parser), args.log_level, tuple(args.obstacle),
-                      args.demo, health_from_args(args))
+                      tuple(args.hidden_obstacle), args.demo, health_from_args(args))
 
 
 def _setup_logging(level: str) -> None:

@@ -45,7 +45,11 @@ class UpSettings:
     arms: tuple[ArmSpec, ...]
     router: RouterSettings
     log_level: str = "INFO"
-    obstacles: tuple[str, ...] = ()  # ``x,y,z,hx,hy,hz`` [m], passed to every servo as --obstacle
+    #: ``x,y,z,hx,hy,hz`` [m]: boxes of the world, given as --obstacle to every servo (simulated) and every
+    #: planner (kept clear of): one list for both
+    obstacles: tuple[str, ...] = ()
+    #: boxes in the servos' simulated world only, which the planners do not know of (an unmodelled obstacle)
+    hidden_obstacles: tuple[str, ...] = ()
     demo: bool = False  # once ready, run ``jara-arm demo`` on every arm (its output on stdout)
     health: Health = SAME_HOST  # passed to every service (--timing, --hung-after)
 
@@ -67,8 +71,11 @@ def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list
             "--exit-with-parent", "--log-level", settings.log_level, *health_argv(settings.health)]
     if settings.router.config:
         argv += ["--config", os.path.abspath(settings.router.config)]
-    if service.service is Service.SERVO:
+    if service.service in (Service.SERVO, Service.PLANNER):
         for box in settings.obstacles:
+            argv += ["--obstacle", box]
+    if service.service is Service.SERVO:
+        for box in settings.hidden_obstacles:
             argv += ["--obstacle", box]
     return argv
 

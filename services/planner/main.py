@@ -46,9 +46,11 @@ from jara_arm.schema.planner import (
     PlannerProgress,
     PlanReply,
 )
+from jara_arm.services.runtime.arguments import non_negative_float, obstacle_argument
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 from jara_arm.services.runtime.wire import Publication, decode_sample
 
+from .collision import DEFAULT_MARGIN
 from .planning import PlanRefused
 from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, Streamer
 from .worker import PlanningProcess
@@ -169,10 +171,18 @@ class PlannerProgram(ArmService):
         parser.add_argument("--lead-ms", type=float, default=DEFAULT_LEAD * 1e3, metavar="MS",
                             help="position commands kept ahead of the servo [ms]: the pause/stop latency "
                             f"(default: {DEFAULT_LEAD * 1e3:.0f})")
+        parser.add_argument("--obstacle", type=obstacle_argument, action="append", metavar="X,Y,Z,HX,HY,HZ",
+                            help="a fixed box of the world that every motion keeps clear of: centre and half "
+                            "extents [m] in the world frame (repeatable; added to the robot model's own "
+                            "obstacles; give it the servo's --obstacle boxes)")
+        parser.add_argument("--collision-margin", type=non_negative_float, default=DEFAULT_MARGIN, metavar="M",
+                            help="clearance every link keeps from the obstacles [m]; links only must not touch "
+                            f"each other (default: {DEFAULT_MARGIN})")
 
     def before_session(self, model: RobotModel, options: argparse.Namespace) -> None:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
-        self._planner = PlanningProcess(model, logging.getLevelName(logging.getLogger().level))
+        self._planner = PlanningProcess(model, logging.getLevelName(logging.getLogger().level),
+                                        model.obstacles + tuple(options.obstacle or ()), options.collision_margin)
 
     def start(self, ctx: ServiceContext) -> None:
         assert self._planner is not None  # before_session() ran

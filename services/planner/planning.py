@@ -29,6 +29,10 @@ Motions, all timed by one profile along one path (``profile.py``):
 Joint speed limits are ``maxSpeedJoint`` capped at the model's rated speeds
 (the servo refuses anything faster as an overspeed fault).
 
+Every motion's sampled path is then checked for contact of the arm's links
+with the world's boxes and with each other (``collision.py``); a contact
+refuses it with VALUE_ERR, naming the two bodies and where on the path.
+
 Cartesian targets: ``structFlag`` must be 0 (nearest solution; no robot here
 defines posture flags). A relative target adds its translation in the robot
 frame, applies its rotation about the robot frame axes (``R_rel · R_start``)
@@ -41,14 +45,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import pinocchio as pin
 from numpy.typing import NDArray
 
 from jara_arm.kinematics import Kinematics, KinematicsError, arm_to_robot, hg_to_se3
-from jara_arm.robots import RobotModel
+from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, WireError
@@ -57,6 +61,7 @@ from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, JointPos
 
 from . import families
+from .collision import DEFAULT_MARGIN, PathChecker
 from .elbow import elbow_speed_limit
 from .families import CartesianKind, CartesianRule, Orientation
 from .paths import CartesianArc, CartesianLine, PathGeometryError
@@ -130,9 +135,13 @@ def _yaw_only(r_delta: NDArray[np.float64]) -> NDArray[np.float64]:
 class MotionPlanner:
     """Plans motions for one robot model. Not thread-safe: one instance per planning thread."""
 
-    def __init__(self, model: RobotModel, kinematics: Kinematics | None = None) -> None:
+    def __init__(self, model: RobotModel, kinematics: Kinematics | None = None, *,
+                 obstacles: Sequence[Obstacle] = (), collision_margin: float = DEFAULT_MARGIN) -> None:
+        """``obstacles``: the world's boxes (the model's own and the ``--obstacle`` ones, in the world frame);
+        ``collision_margin`` [m]: the clearance every link keeps from them (``collision.py``)."""
         self.model = model
         self.kin = kinematics or Kinematics(model)
+        self.collisions = PathChecker(model, obstacles, collision_margin)
         self.n = model.axis_num
         self.dt = model.cmd_cycle
         self._rated = np.array(model.rated_speed)
@@ -156,6 +165,9 @@ class MotionPlanner:
             self._check_settings(req.settings)
             motion: Callable[..., PlannedMotion] = getattr(self, op.name)  # one method per IDL motion
             planned = motion(req, start, **args)
+            contact = self.collisions.check(planned.q)  # every motion passes here, before it is accepted
+            if contact is not None:
+                raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {contact.describe()}")
             return dataclasses.replace(planned, preview=self.preview(planned.q, req.settings))
         except WireError as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None

@@ -21,12 +21,14 @@ import multiprocessing.connection
 import os
 import signal
 import threading
+from collections.abc import Sequence
 
-from jara_arm.robots import RobotModel
+from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.planner import MotionRequest
 from jara_arm.services.runtime.logs import setup_stderr
 
+from .collision import DEFAULT_MARGIN
 from .planning import MotionPlanner, PlanRefused
 from .trajectory import Joints, PlannedMotion
 
@@ -35,7 +37,8 @@ log = logging.getLogger(__name__)
 _START_TIMEOUT = 60.0  # [s] for the child to import its libraries and build the kinematics
 
 
-def _serve(conn: multiprocessing.connection.Connection, model: RobotModel, log_level: str) -> None:
+def _serve(conn: multiprocessing.connection.Connection, model: RobotModel, log_level: str,
+           obstacles: tuple[Obstacle, ...], margin: float) -> None:
     """The child's loop: one request in, one answer out, until the pipe closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the service's to handle; EOF ends us
     try:  # a restart from a real-time thread would pass its priority on: planning is no real-time work
@@ -43,7 +46,7 @@ def _serve(conn: multiprocessing.connection.Connection, model: RobotModel, log_l
     except (OSError, AttributeError):
         pass
     setup_stderr(log_level)
-    planner = MotionPlanner(model)
+    planner = MotionPlanner(model, obstacles=obstacles, collision_margin=margin)
     conn.send(("ready",))
     while True:
         try:
@@ -61,18 +64,21 @@ def _serve(conn: multiprocessing.connection.Connection, model: RobotModel, log_l
 
 
 class PlanningProcess:
-    """A child process that plans motions for ``model``; :meth:`plan` is its only call."""
+    """A child process that plans motions for ``model`` among ``obstacles`` (the world's boxes: the model's own
+    and the ``--obstacle`` ones) with ``collision_margin`` [m]; :meth:`plan` is its only call."""
 
-    def __init__(self, model: RobotModel, log_level: str = "INFO") -> None:
+    def __init__(self, model: RobotModel, log_level: str = "INFO", obstacles: Sequence[Obstacle] = (),
+                 collision_margin: float = DEFAULT_MARGIN) -> None:
         self.model = model
         self._log_level = log_level
+        self._world = (tuple(obstacles), collision_margin)
         self._ctx = multiprocessing.get_context("spawn")
         self._lock = threading.Lock()  # one request at a time on the pipe
         self._start()
 
     def _start(self) -> None:
         self._conn, child = self._ctx.Pipe()
-        self._proc = self._ctx.Process(target=_serve, args=(child, self.model, self._log_level),
+        self._proc = self._ctx.Process(target=_serve, args=(child, self.model, self._log_level, *self._world),
                                        name="jara-arm-planning", daemon=True)
         self._proc.start()
         child.close()

@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from jara_arm.robots.model import Obstacle, RobotModelError
+
 
 def positive_int(text: str) -> int:
     """A whole number of 1 or more (a count)."""
@@ -41,3 +43,11 @@ def non_negative_float(text: str) -> float:
     if not (value >= 0.0 and math.isfinite(value)):
         raise argparse.ArgumentTypeError(f"expected a number of 0 or more, got {text}")
     return value
+
+
+def obstacle_argument(text: str) -> Obstacle:
+    """A box of the world, ``x,y,z,hx,hy,hz`` [m]: centre and half extents (``--obstacle``)."""
+    try:
+        return Obstacle.parse(text)
+    except RobotModelError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

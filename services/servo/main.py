@@ -9,7 +9,7 @@ import argparse
 import logging
 from collections.abc import Sequence
 
-from jara_arm.robots import DEFAULT_ROBOT, Obstacle, RobotModel, RobotModelError
+from jara_arm.robots import DEFAULT_ROBOT, RobotModel
 from jara_arm.robots import robot as robot_model
 from jara_arm.schema.alarms import format_code
 from jara_arm.schema.codec import Reply
@@ -18,6 +18,7 @@ from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.keys import ArmKeys, Service, check_arm
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
+from jara_arm.services.runtime.arguments import obstacle_argument
 from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
 from jara_arm.services.runtime.rpc import ok, refuse
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
@@ -174,14 +175,6 @@ def arm_argument(text: str) -> tuple[str, RobotModel]:
         return arm, robot_model(name if sep else DEFAULT_ROBOT)
     except JaraArmError as exc:
         raise argparse.ArgumentTypeError(f"{text}: {exc}") from None
-
-
-def obstacle_argument(text: str) -> Obstacle:
-    """argparse type of ``--obstacle``: ``x,y,z,hx,hy,hz`` [m]."""
-    try:
-        return Obstacle.parse(text)
-    except RobotModelError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 PROGRAM = ServoService
