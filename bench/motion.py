@@ -4,11 +4,12 @@ Measures, and prints one line each:
 
 * reply -> motion: from the ``Planner/plan`` reply to the first feedback sample
   that has left the start (PTP from rest, 50 %), median / max over ``--n`` moves;
-* planning time to the first streamed command, from the request, for a 0.5 m
-  LIN and a half-circle CIRC (radius 0.15 m) at 0.25 m/s, the planner's own
-  planning time (its log), and the same two motions planned in this process
-  (``MotionPlanner.plan``, median wall and least CPU time of 9: the planning
-  cost without the services and the machine's other load);
+* request -> first position command (the first ``PositionBlock`` seen on the
+  wire) for a 0.5 m LIN and a half-circle CIRC (radius 0.15 m) at 0.25 m/s,
+  each once, the planner's own planning time (its log), and the same two
+  motions planned in this process (``MotionPlanner.plan``, median wall and
+  least CPU time of 9: the planning cost without the services and the
+  machine's other load); ``bench/plan_stages.py`` splits that cost by stage;
 * deviation of those moves from the ideal line / circle: planned (FK of the
   position commands) and executed (FK of the feedback);
 * pause latency: from the ``pause`` reply to the servo consuming the first
@@ -79,7 +80,6 @@ class Bench:
         self.session = session
         self.keys = ArmKeys()
         self.kin = Kinematics(MODEL)
-        self.ids = iter(range(1, 1 << 30))
         self.lock = threading.Lock()
         self.cmds: list[tuple[float, bytes]] = []
         self.fbs: list[tuple[float, bytes]] = []
@@ -114,12 +114,12 @@ class Bench:
         return MotionSettings(**s)
 
     def plan(self, op: str, args: dict | None = None, **kw):
-        req = MotionRequest(next(self.ids), op, args or {}, self.settings(**kw))
+        req = MotionRequest(op, args or {}, self.settings(**kw))
         r = list(self.session.get(self.keys.planner_plan, payload=codec.encode_message(MOTION_REQUEST, req),
                                   timeout=30.0))
         reply = codec.decode_message(PLAN_REPLY, r[0].ok.payload.to_bytes())
         assert reply.id == 0, reply
-        return req.motion, reply
+        return reply.motion, reply  # the id the planner's queue gave it
 
     def control(self, action: ControlAction) -> dict:
         r = list(self.session.get(self.keys.planner_control, payload=codec.encode_message(

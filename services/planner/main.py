@@ -130,8 +130,9 @@ class PlannerService:
                 log.info("motion %d %s accepted: %.3f s long, planned in %.0f ms", motion_id, req.op,
                          motion.duration, (time.perf_counter() - t0) * 1e3)
                 # On the plan worker (not the streamer): one message per motion, for viewers.
+                # The preview arrives from the planning process after the motion: read it once queued.
                 self._path_pub.put_message(PLANNED_PATH, PlannedPath(
-                    motion_id, req.op, tuple(tuple(p) for p in motion.preview.tolist())))
+                    motion_id, req.op, tuple(tuple(p) for p in self.planner.preview().tolist())))
                 return PlanReply(int(ReturnCode.OK), "OK", motion_id, tuple(motion.end.tolist()),
                                  motion.duration, progress)
             log.info("%s: the queue was stopped while planning; planning again", req.op)

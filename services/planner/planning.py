@@ -151,8 +151,12 @@ class MotionPlanner:
 
     # ------------------------------------------------------------------ entry
 
-    def plan(self, req: MotionRequest, start: Joints) -> PlannedMotion:
-        """The motion ``req`` from ``start`` (wire joints); raises PlanRefused."""
+    def plan(self, req: MotionRequest, start: Joints, *, preview: bool = True) -> PlannedMotion:
+        """The motion ``req`` from ``start`` (wire joints); raises PlanRefused.
+
+        ``preview``: fill in ``PlannedMotion.preview``; the planning process leaves it out and sends it after
+        the motion (a viewer's polyline is no part of the acceptance: it stays off the first command's path).
+        """
         op = MIDDLE.get(req.op)
         if op is None or not op.motion:
             raise PlanRefused(ReturnCode.NOT_IMPLEMENTED, f"{req.op!r} is not a motion operation")
@@ -168,7 +172,7 @@ class MotionPlanner:
             contact = self.collisions.check(planned.q)  # every motion passes here, before it is accepted
             if contact is not None:
                 raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {contact.describe()}")
-            return dataclasses.replace(planned, preview=self.preview(planned.q, req.settings))
+            return dataclasses.replace(planned, preview=self.preview(planned.q, req.settings)) if preview else planned
         except WireError as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
         except (PathGeometryError, ProfileError, KinematicsError) as exc:

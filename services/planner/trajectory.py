@@ -56,8 +56,14 @@ class TableMap:
 
     @classmethod
     def build(cls, s: NDArray[np.float64], q: Joints) -> TableMap:
-        """From profile samples, dropping repeated ``s`` (rest at the ends)."""
+        """From profile samples, dropping repeated ``s`` (rest at the ends).
+
+        With nothing to drop the table is ``q`` itself, not a copy: a motion's samples and its table are then
+        one array, pickled once on the way from the planning process (half the bytes through the pipe).
+        """
         keep = np.concatenate(([True], np.diff(s) > 0.0))
+        if keep.all():
+            return cls(np.ascontiguousarray(s), np.ascontiguousarray(q))
         return cls(np.ascontiguousarray(s[keep]), np.ascontiguousarray(q[keep]))
 
     def joints(self, s: NDArray[np.float64]) -> Joints:

@@ -11,6 +11,10 @@ The child is started with ``spawn`` (the parent has Zenoh threads), receives
 ``(MotionRequest, start joints)`` on a pipe and sends back the
 :class:`PlannedMotion` (pickled; its Ruckig profile is rebuilt on arrival) or
 the refusal. It exits when the pipe closes, so it never outlives the service.
+
+An accepted motion's preview (the viewers' polyline) follows as a second
+message: the parent queues the motion first (its first command goes out) and
+then reads the preview for ``Planner/path``.
 """
 
 from __future__ import annotations
@@ -22,6 +26,9 @@ import os
 import signal
 import threading
 from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
 
 from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema.codes import ReturnCode
@@ -53,14 +60,23 @@ def _serve(conn: multiprocessing.connection.Connection, model: RobotModel, log_l
             req, start = conn.recv()
         except (EOFError, OSError):
             return
+        motion = None
         try:
-            answer: tuple = ("ok", planner.plan(req, start))
+            motion = planner.plan(req, start, preview=False)
+            answer: tuple = ("ok", motion)
         except PlanRefused as exc:
             answer = ("refused", int(exc.code), exc.comment)
         except Exception as exc:  # a planner bug: refuse this motion, keep serving
             log.exception("planning %s failed", req.op)
             answer = ("refused", int(ReturnCode.NG), f"internal error while planning {req.op}: {exc}")
         conn.send(answer)
+        if motion is not None:  # after the answer: the parent queues the motion meanwhile
+            try:
+                preview = planner.preview(motion.q, req.settings)
+            except Exception:  # a viewer's polyline: never worth a motion
+                log.exception("the preview of %s failed", req.op)
+                preview = np.zeros((0, 3))
+            conn.send(("preview", preview))
 
 
 class PlanningProcess:
@@ -77,6 +93,7 @@ class PlanningProcess:
         self._start()
 
     def _start(self) -> None:
+        self._preview_pending = False  # the child sends an accepted motion's preview after it
         self._conn, child = self._ctx.Pipe()
         self._proc = self._ctx.Process(target=_serve, args=(child, self.model, self._log_level, *self._world),
                                        name="jara-arm-planning", daemon=True)
@@ -87,11 +104,14 @@ class PlanningProcess:
         self._conn.recv()
 
     def plan(self, req: MotionRequest, start: Joints) -> PlannedMotion:
-        """The planned motion; raises PlanRefused (also if the child died: it is restarted)."""
+        """The planned motion, its ``preview`` empty (:meth:`preview` has it); raises PlanRefused (also if the
+        child died: it is restarted)."""
         with self._lock:
             try:
+                self._take_preview()  # a preview nobody asked for (the motion was not queued)
                 self._conn.send((req, start))
                 answer = self._conn.recv()
+                self._preview_pending = answer[0] == "ok"
             except (EOFError, OSError, BrokenPipeError):
                 log.error("the planning process died (exit code %s); restarting it", self._proc.exitcode)
                 self._proc.join(timeout=1.0)
@@ -101,6 +121,25 @@ class PlanningProcess:
         if answer[0] == "ok":
             return answer[1]
         raise PlanRefused(ReturnCode(answer[1]), answer[2])
+
+    def preview(self) -> NDArray[np.float64]:
+        """(K, 3) [m] the control point polyline of the motion :meth:`plan` returned last (``PlannedMotion.preview``);
+        empty if there is none or the child died (the next :meth:`plan` restarts it)."""
+        with self._lock:
+            try:
+                return self._take_preview()
+            except (EOFError, OSError):
+                return np.zeros((0, 3))
+
+    def _take_preview(self) -> NDArray[np.float64]:
+        """The pending preview off the pipe (lock held)."""
+        if not self._preview_pending:
+            return np.zeros((0, 3))
+        self._preview_pending = False
+        kind, preview = self._conn.recv()
+        assert kind == "preview", kind
+        points: NDArray[np.float64] = preview
+        return points
 
     def close(self) -> None:
         self._conn.close()
