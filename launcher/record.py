@@ -82,6 +82,11 @@ def drain(inbox: Inbox, writer: RecordingWriter, limit: int = _BATCH) -> int:
     return done
 
 
+#: After the stop (Ctrl-C, SIGTERM, --duration) samples are still taken this long [s]: those on their way
+#: then (the trace of the call just answered, say) belong to the run; a loopback or LAN transit is well under it.
+LINGER = 0.2
+
+
 def lower_priority() -> None:
     """Run this process below the services (nice +10): on a busy machine the recorder waits, not them."""
     try:
@@ -111,6 +116,10 @@ def run_record(session: zenoh.Session, writer: RecordingWriter, settings: Record
                 dropped = f", {inbox.dropped} dropped" if inbox.dropped else ""
                 progress.show(f"{writer.path}: {human_size(writer.size)}, {writer.count} messages, "
                               f"{rate:.0f} msg/s{dropped}")
+        linger = time.monotonic() + LINGER  # what was on its way when told to stop happened before the stop
+        while time.monotonic() < linger:
+            if not drain(inbox, writer):
+                time.sleep(_POLL)
     finally:
         for sub in subs:
             sub.undeclare()

@@ -394,7 +394,13 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
             client.wait_idle()
             session.put(client.keys.estop, b"")
             wait_until(lambda: client.state() & StateBit.ALARM, 10, what="the e-stop alarm")
+            cleared = session.declare_subscriber(client.keys.trace(Interface.COMMON.value, OP.clearAlarms),
+                                                 zenoh.handlers.FifoChannel(4))
             assert client.common(OP.clearAlarms).ok
+            # The trace goes out after the reply: once it is here, the recorder's copy is on its way
+            # too, and the recorder takes what is on its way when stopped (record.LINGER).
+            wait_until(lambda: cleared.try_recv() is not None, 10, what="the trace of clearAlarms")
+            cleared.undeclare()
             t_end = time.time()
             code = rec.stop(signal.SIGINT)
             assert code == 0, rec.output
