@@ -7,6 +7,7 @@
 ``arm_angle``      the arm angle of a 7-axis arm, its value and gradient on Pinocchio
 ``ik``             task masks, :class:`IkResult`, seed table, restarts, the IK loop
 ``model``          :class:`Kinematics`: one arm's model, limits, FK, Jacobians, ``ik``
+``posture``        posture bits (``structFlag``) of 6- and 7-axis arms: reading them, IK that holds them
 =================  ==================================================================
 
 Frames are those of DECISIONS.md "Frames" (see :mod:`.frames`). Positions are

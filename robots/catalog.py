@@ -28,6 +28,10 @@ IIWA = RobotModel(
     min_accel_time=0.2,
     min_accel_time_cartesian=0.2,
     ready_pose=(0.0, 0.4, 0.0, -1.74, 0.0, 1.0, 0.0),  # flange at (0.5, 0, 0.45) m, tool down
+    # structFlag = 0x100 | bits at a given arm angle (KUKA LBR's Status): 0x1 J2 < 0, 0x2 J4 < 0
+    # (stretched at 0), 0x4 J6 < 0. Each bit is one of the 8 solutions of a pose and arm angle,
+    # e.g. J1 + pi, -J2, J3 + pi for 0x1; the ready pose is 0x102.
+    posture_joints=(1, 3, 5),
 )
 
 #: Franka Emika Panda; both fingers are one gripper axis [m per finger], 0 closed .. 0.04 open.
@@ -44,6 +48,11 @@ PANDA = RobotModel(
     min_accel_time=0.2,
     min_accel_time_cartesian=0.2,
     ready_pose=(0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785),
+    # structFlag = 0x100 | bits at a given arm angle, as the iiwa's: 0x1 J2 < 0; 0x2 J4 below its
+    # stretched value -0.467 rad (the link offsets bend the straight arm), so only J4 in (-0.467, 0]
+    # clears it; 0x4 sin(J6) < 0, i.e. J6 < 0 or J6 > pi (J6 spans -0.087 .. 3.82 rad). The ready
+    # pose is 0x103 (J2 < 0); 0x104 .. 0x107 exist only near J6's ends.
+    posture_joints=(1, 3, 5),
     gripper_joints=("panda_finger_joint1", "panda_finger_joint2"),
     gripper_speed=0.1,
     gripper_effort=70.0,
@@ -152,6 +161,10 @@ ARM6 = RobotModel(
     min_accel_time=0.25,
     min_accel_time_cartesian=0.25,
     ready_pose=(0.0, 0.2, 0.2, 0.0, 1.17, 0.0),
+    # structFlag = 0x100 | bits (KUKA's 6-axis Status): 0x1 the wrist centre (J5) behind J1's axis
+    # (overhead: negative along J1's x axis, which turns with J1); 0x2 elbow down: J3 below its
+    # stretched value -1.457 rad; 0x4 wrist flipped: J5 < 0. The ready pose is 0x100.
+    posture_joints=(1, 2, 4),
 )
 
 ROBOTS: Mapping[str, RobotModel] = MappingProxyType(

@@ -84,6 +84,9 @@ class RobotModel:
     cmd_cycle_ms: int = 1  # [ms] servo period
     base_position: tuple[float, float, float] = (0.0, 0.0, 0.0)  # [m] in the simulated world
     obstacles: tuple[Obstacle, ...] = ()  # fixed boxes in the simulated world
+    # Posture bits (structFlag, kinematics/posture.py): zero-based shoulder, elbow, wrist joints S, E, W;
+    # None: the robot defines none and structFlag must be 0.
+    posture_joints: tuple[int, int, int] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.arm_joints)
@@ -96,6 +99,10 @@ class RobotModel:
             raise RobotModelError(f"{self.name}: URDF not found: {self.urdf}")
         if self.cmd_cycle_ms < 1:
             raise RobotModelError(f"{self.name}: cmd_cycle_ms must be >= 1")
+        pj = self.posture_joints
+        if pj is not None and (n not in (6, 7) or not 0 <= pj[0] < pj[1] < pj[2] < n):
+            raise RobotModelError(f"{self.name}: posture_joints need 6 or 7 axes and three increasing "
+                                  f"axis indices, got {pj}")
         limits = self.hard_limits
         for i, (q, lim) in enumerate(zip(self.ready_pose, limits)):
             if not lim.lower <= q <= lim.upper:

@@ -26,6 +26,8 @@ import pinocchio as pin
 import pytest
 import zenoh
 
+from jara_arm.kinematics import Kinematics
+from jara_arm.kinematics.posture import Postures
 from jara_arm.robots import robot
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
@@ -586,7 +588,7 @@ def test_feedback_pos_cartesian_follows_base_and_control_point_offsets(real: Rig
         expected = np.linalg.inv(h4(base)) @ flange_pose(q) @ h4(cp)
         assert np.allclose(pos.carPos, expected[:3], atol=1e-5), (pos.carPos, expected)
         assert pos.elbow == pytest.approx(arm_angle(q), abs=1e-5) and abs(pos.elbow) > 0.1
-        assert pos.structFlag == 0
+        assert pos.structFlag == Postures(Kinematics(IIWA, seed_table=0)).of(q[:7])  # issue 15: posture bits
 
 
 # ---------------------------------------------------------------------------- bad input

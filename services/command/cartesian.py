@@ -12,6 +12,7 @@ import numpy as np
 import pinocchio as pin
 
 from jara_arm.kinematics import Kinematics, arm_to_robot, as_se3, se3_to_hg
+from jara_arm.kinematics.posture import Postures
 from jara_arm.robots import Family, RobotModel
 from jara_arm.schema.types import CarPosWithElbow, HgMatrix, LimitValue
 
@@ -65,6 +66,7 @@ class CartesianFeedback:
     def __init__(self, robot: RobotModel) -> None:
         self.robot = robot
         self.kinematics = Kinematics(robot, seed_table=0)  # FK only: no IK seed table
+        self.postures = Postures(self.kinematics) if robot.posture_joints is not None else None
 
     def pose(self, joints: Sequence[float], base_offset: HgMatrix,
              control_point_offset: HgMatrix) -> CarPosWithElbow:
@@ -76,6 +78,8 @@ class CartesianFeedback:
         rotation about Z nearest to the measured one: the same projection as its commands,
         so a tilted control point offset or base offset adds no X / Y rotation); articulated
         arms the full pose. ``elbow`` is the measured arm angle on 7 axes, 0 otherwise.
+        ``structFlag`` is the arm's posture ``POSTURE_SET | bits`` on robots that define posture
+        bits (``kinematics/posture.py``), 0 on the others.
 
         ``joints`` [rad or m] may include the gripper axis after the arm axes; it is ignored.
         """
@@ -88,4 +92,5 @@ class CartesianFeedback:
         hg[:, :3] = pin.Quaternion(hg[:, :3]).normalized().toRotationMatrix()
         hg.flags.writeable = False
         elbow = self.kinematics.elbow_angle(q) if self.robot.axis_num == 7 else 0.0
-        return CarPosWithElbow(hg, float(elbow), 0)
+        posture = self.postures.of(q) if self.postures is not None else 0
+        return CarPosWithElbow(hg, float(elbow), posture)

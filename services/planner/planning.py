@@ -33,8 +33,14 @@ Every motion's sampled path is then checked for contact of the arm's links
 with the world's boxes and with each other (``collision.py``); a contact
 refuses it with VALUE_ERR, naming the two bodies and where on the path.
 
-Cartesian targets: ``structFlag`` must be 0 (nearest solution; no robot here
-defines posture flags). A relative target adds its translation in the robot
+Cartesian targets: ``structFlag`` 0 takes the IK solution nearest to the
+start joints. On robots with posture bits (``arm6``, ``iiwa``, ``panda``:
+``kinematics/posture.py``) a non-zero ``structFlag`` is ``POSTURE_SET | bits``:
+a PTP reaches the pose in that posture (VALUE_ERR naming it if the pose has
+none within the joint soft limits); a LIN / CIRC must keep the start's posture
+(a posture change needs a PTP), and its target's structFlag, if non-zero, must
+be that posture; a CIRC's via point's structFlag is only checked for form.
+Other robots refuse a non-zero ``structFlag``. A relative target adds its translation in the robot
 frame, applies its rotation about the robot frame axes (``R_rel · R_start``)
 and, on a 7-axis arm, adds its ``elbow`` to the start arm angle. A 7-axis
 LIN / CIRC moves the arm angle linearly along the path from the start's to the
@@ -52,6 +58,7 @@ import pinocchio as pin
 from numpy.typing import NDArray
 
 from jara_arm.kinematics import Kinematics, KinematicsError, arm_to_robot, hg_to_se3
+from jara_arm.kinematics.posture import BITS, POSTURE_SET, Postures, describe
 from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema.codes import ReturnCode
@@ -141,6 +148,7 @@ class MotionPlanner:
         ``collision_margin`` [m]: the clearance every link keeps from them (``collision.py``)."""
         self.model = model
         self.kin = kinematics or Kinematics(model)
+        self.postures = Postures(self.kin) if model.posture_joints is not None else None
         self.collisions = PathChecker(model, obstacles, collision_margin)
         self.n = model.axis_num
         self.dt = model.cmd_cycle
@@ -303,10 +311,7 @@ class MotionPlanner:
     def _target(self, cp: CarPosWithElbow, start_pose: pin.SE3, relative: bool,
                 rule: CartesianRule) -> pin.SE3:
         """The commanded pose (robot frame; arm frame for ``planar``) after the family rule."""
-        if cp.structFlag != 0:
-            raise PlanRefused(ReturnCode.VALUE_ERR,
-                              f"structFlag {cp.structFlag}: {self.model.name} defines no posture flags; "
-                              "use 0 (the IK solution nearest to the start joints)")
+        self._posture_flag(cp)
         cmd = hg_to_se3(cp.carPos)
         r0, p0 = start_pose.rotation, start_pose.translation
         if relative:
@@ -323,6 +328,21 @@ class MotionPlanner:
         if rule.planar:
             T = pin.SE3(T.rotation, np.array([*T.translation[:2], p0[2]]))
         return T
+
+    def _posture_flag(self, cp: CarPosWithElbow) -> int:
+        """``cp.structFlag`` checked: 0 (nearest) or, on a robot with posture bits, ``POSTURE_SET | bits``."""
+        flag = cp.structFlag
+        if flag == 0:
+            return 0
+        if self.postures is None:
+            raise PlanRefused(ReturnCode.VALUE_ERR,
+                              f"structFlag {flag}: {self.model.name} defines no posture flags; "
+                              "use 0 (the IK solution nearest to the start joints)")
+        if flag & ~(POSTURE_SET | BITS) or not flag & POSTURE_SET:
+            raise PlanRefused(ReturnCode.VALUE_ERR,
+                              f"structFlag {flag:#x}: {self.model.name}'s posture flags are {POSTURE_SET:#x} | "
+                              f"bits (0x1 shoulder back, 0x2 elbow down, 0x4 wrist flipped), or 0 (nearest)")
+        return flag
 
     def _elbow_target(self, cp: CarPosWithElbow, start: Joints, relative: bool,
                       rule: CartesianRule) -> tuple[float | None, float | None]:
@@ -371,6 +391,16 @@ class MotionPlanner:
         _, elbow = self._elbow_target(cp, start, relative, rule)
         lo, hi = self._soft_limits(s)
         target = families.reachable_pose(rule, self.kin, frames.base * T1, frames.tool)
+        flag = self._posture_flag(cp)
+        if flag and self.postures is not None:
+            found = self.postures.ik(flag, target, [start[:self.n]], tool=frames.tool, elbow=elbow, mask=rule.mask,
+                                     tol_pos=IK_TOLERANCE, tol_rot=IK_TOLERANCE, lower=lo, upper=hi)
+            if found is None:
+                raise PlanRefused(ReturnCode.VALUE_ERR,
+                                  f"{req.op}: the target pose has no IK solution with posture {describe(flag)}"
+                                  + (" at this arm angle" if elbow is not None else "")
+                                  + " within the joint soft limits")
+            return self._joint_ptp(req, start, found.q)
         res = self.kin.ik(target, start[:self.n], tool=frames.tool, elbow=elbow,
                           mask=rule.mask, tol_pos=IK_TOLERANCE, tol_rot=IK_TOLERANCE, lower=lo, upper=hi)
         if not res.success:
@@ -387,7 +417,8 @@ class MotionPlanner:
         T0 = self.control_pose(start[:self.n], frames)
         T1 = self._target(cp, T0, relative, rule)
         elbows = self._elbow_target(cp, start, relative, rule)
-        return self._cartesian(req, start, CartesianLine(T0, T1), rule, frames, elbows)
+        return self._keep_posture(req, start, self._posture_flag(cp),
+                                  lambda: self._cartesian(req, start, CartesianLine(T0, T1), rule, frames, elbows))
 
     def _circular(self, req: MotionRequest, start: Joints, via: CarPosWithElbow, cp: CarPosWithElbow,
                   relative: bool) -> PlannedMotion:
@@ -401,7 +432,24 @@ class MotionPlanner:
             arc = CartesianArc(T0, Tv.translation, T1)
         except PathGeometryError as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {exc}") from None
-        return self._cartesian(req, start, arc, rule, frames, elbows)
+        return self._keep_posture(req, start, self._posture_flag(cp),
+                                  lambda: self._cartesian(req, start, arc, rule, frames, elbows))
+
+    def _keep_posture(self, req: MotionRequest, start: Joints, flag: int,
+                      plan: Callable[[], PlannedMotion]) -> PlannedMotion:
+        """A LIN / CIRC ``plan`` whose target posture ``flag`` (0: any) must be the start's, and is at its end."""
+        if not flag or self.postures is None:
+            return plan()
+        at_start = self.postures.of(start[:self.n])
+        if flag == at_start:
+            planned = plan()
+            at_end = self.postures.of(planned.end[:self.n])
+            if at_end == flag:
+                return planned
+            flag = at_end  # the path ends in another posture: no path keeps this one
+        raise PlanRefused(ReturnCode.VALUE_ERR,
+                          f"{req.op}: the target posture {describe(flag)} differs from the start's "
+                          f"{describe(at_start)}: a posture change needs a PTP (movePTPCartesianAbs / Rel)")
 
     def _cartesian(self, req: MotionRequest, start: Joints, path: CartesianLine | CartesianArc,
                    rule: CartesianRule, frames: _Frames,
