@@ -1,0 +1,196 @@
+"""Blending (issue 15, part 3): ``services/planner/blend.py`` through ``MotionPlanner`` and ``Streamer``.
+
+In-process: the planner's blend of two LINs at a right angle, its fallbacks, and the streamer running
+through it with pause / resume / stop.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from jara_arm.robots import Obstacle, robot
+from jara_arm.schema.operations import OP
+from jara_arm.schema.planner import ControlAction, MotionRequest, MotionSettings
+from jara_arm.schema.types import CartesianSpeed, LimitValue
+from jara_arm.services.planner.planning import MotionPlanner
+from jara_arm.services.planner.streamer import Streamer
+from jara_arm.services.planner.trajectory import PlannedMotion
+
+IIWA = robot("iiwa")
+DT = IIWA.cmd_cycle
+D = 0.02  # [m] the blend distance of most tests
+
+
+def _settings(d: float) -> MotionSettings:
+    m = IIWA
+    return MotionSettings(
+        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=m.rated_speed,
+        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=m.min_accel_time,
+        accelTimeCartesian=m.min_accel_time_cartesian, softLimitJoint=m.hard_limits,
+        softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
+        controlPointOffset=np.eye(4)[:3], home=m.ready_pose, blendDistance=d)
+
+
+def _lin(planner: MotionPlanner, dx: float, dy: float, start: np.ndarray, previous: PlannedMotion | None,
+         d: float) -> PlannedMotion:
+    car = {"carPos": [[1.0, 0.0, 0.0, dx], [0.0, 1.0, 0.0, dy], [0.0, 0.0, 1.0, 0.0]], "elbow": 0.0,
+           "structFlag": 0}
+    return planner.plan(MotionRequest(OP.moveLinearCartesianRel, {"carPoint": car}, _settings(d)), start, previous)
+
+
+def _corner(planner: MotionPlanner, d: float, leg: float = 0.15) -> tuple[PlannedMotion, PlannedMotion]:
+    """+x by ``leg``, then +y by ``leg`` from the ready pose: the second one planned with the first queued."""
+    first = dataclasses.replace(_lin(planner, leg, 0.0, np.array(IIWA.ready_pose), None, d), motion=1)
+    return first, _lin(planner, 0.0, leg, first.end, first, d)
+
+
+@pytest.fixture(scope="module")
+def planner() -> MotionPlanner:
+    return MotionPlanner(IIWA)
+
+
+@pytest.fixture(scope="module")
+def corner(planner: MotionPlanner) -> tuple[PlannedMotion, PlannedMotion]:
+    return _corner(planner, D)
+
+
+def _blended(first: PlannedMotion, second: PlannedMotion) -> np.ndarray:
+    b = second.blend
+    assert b is not None
+    return np.vstack([first.q[:b.cut + 1], b.trajectory.q[1:], second.q[b.rejoin + 1:]])
+
+
+def _distance_to_polyline(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(N,) [m] each point's distance to the polyline through ``corners`` (K, 3)."""
+    best = np.full(len(points), np.inf)
+    for a, b in zip(corners[:-1], corners[1:]):
+        ab = b - a
+        t = np.clip((points - a) @ ab / (ab @ ab), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(points - (a + t[:, None] * ab), axis=1))
+    return best
+
+
+def test_right_angle_blend_is_smooth_never_stops_and_keeps_within_d(planner, corner):
+    first, second = corner
+    b = second.blend
+    assert b is not None and b.previous == 1 and b.distance == D
+    q = _blended(first, second)
+    v = np.diff(q, axis=0) / DT
+    a = np.diff(v, axis=0) / DT
+    lim = b.limits
+    i0, i1 = b.cut, b.cut + len(b.trajectory.q) - 1  # rows of q: the blend's first and last
+    # continuous position, velocity and acceleration: no step larger than the jerk limit allows
+    assert np.all(np.abs(np.diff(a, axis=0))[i0 - 3:i1 + 2] <= lim.jerk * DT * 1.01)
+    # within every axis' velocity and acceleration limits through the blend
+    assert np.all(np.abs(v[i0 - 1:i1 + 1]) <= lim.velocity * (1 + 1e-9))
+    assert np.all(np.abs(a[i0 - 1:i1]) <= lim.acceleration * 1.01)
+    pts = planner._fk.run(q, None)[0]  # the control point (no tool) at every sample
+    speed = np.linalg.norm(np.diff(pts, axis=0), axis=1) / DT
+    assert speed[i0 - 1:i1 + 1].min() > 0.05  # [m/s] it never stops at the corner
+    c = planner._fk.run(first.end[None], None)[0][0]  # the corner
+    dev = _distance_to_polyline(pts, np.array([pts[0], c, pts[-1]]))
+    assert dev.max() <= D + 1e-6
+    assert np.linalg.norm(pts[i0:i1 + 1] - c, axis=1).max() <= D + 1e-6  # within d of the corner itself
+    assert dev[i0:i1].max() > 1e-3  # it really cuts the corner
+    # and it saves time over the exact stop
+    assert len(q) < len(first.q) + len(second.q) - 1 - 100
+
+
+def test_zero_distance_is_todays_exact_stop(planner, corner):
+    first, _ = corner
+    exact = _lin(planner, 0.0, 0.15, first.end, None, 0.0)
+    with_previous = _lin(planner, 0.0, 0.15, first.end, first, 0.0)
+    assert exact.blend is None and with_previous.blend is None
+    np.testing.assert_array_equal(exact.q, with_previous.q)
+    blended = _corner(planner, D)[1]
+    np.testing.assert_array_equal(exact.q, blended.q)  # the blend rides along, the exact motion is the same
+
+
+def test_a_colliding_blend_falls_back_to_exact_stop():
+    """A box beside the first leg, 80 mm before the corner: the second motion is clear of it, the blend
+    (leaving the first leg up to 100 mm before the corner) is not: exact stop, and the motion is accepted."""
+    free = MotionPlanner(IIWA)
+    first = dataclasses.replace(_lin(free, 0.2, 0.0, np.array(IIWA.ready_pose), None, 0.1), motion=1)
+    corner = free.kin.fk(first.end[:IIWA.axis_num]).translation
+    boxed = MotionPlanner(IIWA, obstacles=(Obstacle(tuple(corner + (-0.08, -0.055, 0.0)), (0.01, 0.01, 0.01)),))
+    assert _lin(free, 0.0, 0.2, first.end, first, 0.1).blend is not None  # without the box: blended
+    second = _lin(boxed, 0.0, 0.2, first.end, first, 0.1)
+    assert second.blend is None
+    np.testing.assert_array_equal(second.q, _lin(free, 0.0, 0.2, first.end, None, 0.0).q)
+
+
+# ---------------------------------------------------------------------------------------------- streamer
+
+
+def _streamer(first: PlannedMotion, second: PlannedMotion) -> Streamer:
+    st = Streamer(IIWA.dof, DT, lambda _b: None, lambda _p: None, lambda: None)
+    assert st.submit(dataclasses.replace(first, motion=0), 0) is not None
+    assert st.last_motion() is not None and st.last_motion().motion == 1
+    assert st.submit(second, 0) is not None
+    return st
+
+
+def _send(st: Streamer, count: int | None = None) -> list[np.ndarray]:
+    out: list[np.ndarray] = []
+    while count is None or len(out) < count:
+        q = st._next_sample(0.0)
+        if q is None:
+            break
+        out.append(q.copy())
+    return out
+
+
+def _smooth(q: np.ndarray, accel: np.ndarray) -> None:
+    """No velocity step larger than a few periods of the acceleration limit (continuity through joins)."""
+    v = np.diff(q, axis=0) / DT
+    assert np.all(np.abs(np.diff(v, axis=0)) <= accel * DT * 2.0)
+
+
+def test_streamer_runs_the_blend_without_a_stop(corner):
+    first, second = corner
+    st = _streamer(first, second)
+    sent = np.array(_send(st))
+    np.testing.assert_array_equal(sent, _blended(first, second)[1:])
+    assert st.progress().queued == (1, 2)  # both sent: in flight until the servo has consumed them
+
+
+@pytest.mark.parametrize("action", [ControlAction.PAUSE, ControlAction.STOP])
+def test_pause_and_stop_in_the_blend_brake_to_rest(corner, action):
+    first, second = corner
+    b = second.blend
+    assert b is not None
+    st = _streamer(first, second)
+    sent = _send(st, b.cut + len(b.trajectory.q) // 2)  # into the middle of the blend
+    code, comment, _ = st.control(action)
+    assert "blend" in comment or action is ControlAction.STOP, comment
+    sent += _send(st)
+    q = np.vstack([first.q[:1], sent])
+    _smooth(q, b.limits.acceleration)
+    np.testing.assert_allclose(q[-1], q[-2], atol=1e-6)  # at rest (a jerk-limited last step: j·dt³/6)
+    if action is ControlAction.STOP:
+        progress = st.progress()
+        assert progress.lastDiscarded == 2 and 2 not in progress.queued and _send(st) == []
+        return
+    assert st.progress().paused
+    st.control(ControlAction.RESUME)
+    rest = _send(st)
+    q = np.vstack([q, rest])
+    np.testing.assert_allclose(q[-1], second.end, atol=1e-12)  # back on the path, to its end
+    _smooth(q, np.maximum(b.limits.acceleration, np.abs(np.diff(second.q, 2, axis=0)).max(axis=0) / DT**2))
+
+
+def test_a_pause_before_the_cut_gives_the_exact_stop(corner):
+    first, second = corner
+    b = second.blend
+    assert b is not None
+    st = _streamer(first, second)
+    _send(st, b.cut - 50)
+    st.control(ControlAction.PAUSE)
+    _send(st)
+    st.control(ControlAction.RESUME)
+    rest = np.array(_send(st))
+    n = len(second.q) - 1
+    np.testing.assert_array_equal(rest[-n:], second.q[1:])  # the exact-stop motion from the corner
