@@ -1,27 +1,101 @@
-"""Blending (issue 15, part 3): ``services/planner/blend.py`` through ``MotionPlanner`` and ``Streamer``.
+"""Blending (issue 15, part 3): ``services/planner/blend.py`` through ``MotionPlanner`` and ``Streamer``,
+switched on by ``Ext/setBlendDistance`` (``services/command/ext.py``).
 
-In-process: the planner's blend of two LINs at a right angle, its fallbacks, and the streamer running
-through it with pause / resume / stop.
+In-process: the blend distance setting (its checks, the snapshot every motion carries, the Ext handler's
+replies); the planner's blend of two LINs at a right angle, its fallbacks, and the streamer running
+through it with pause / resume / stop. Live (``test_live_*``, the whole system from ``jara-arm up``):
+three LINs around square corners queued back to back with d = 20 mm and with d = 0, and a pause and a
+stop in the middle of a blend.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
+import msgpack
 import numpy as np
 import pytest
 
 from jara_arm.robots import Obstacle, robot
-from jara_arm.schema.operations import OP
+from jara_arm.schema.codec import Encoding
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.operations import EXT, MAX_BLEND_DISTANCE, OP
 from jara_arm.schema.planner import ControlAction, MotionRequest, MotionSettings
 from jara_arm.schema.types import CartesianSpeed, LimitValue
+from jara_arm.services.command.ext import CommandExt
+from jara_arm.services.command.middle import CommandMiddle
+from jara_arm.services.command.settings import Settings
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.streamer import Streamer
 from jara_arm.services.planner.trajectory import PlannedMotion
+from jara_arm.services.runtime.rpc import answer
 
 IIWA = robot("iiwa")
 DT = IIWA.cmd_cycle
 D = 0.02  # [m] the blend distance of most tests
+
+
+# ---------------------------------------------------------------------------------------------- the setting
+
+
+def _defaults() -> Settings:
+    return Settings.defaults(IIWA, reach=1.0)
+
+
+def test_the_blend_distance_starts_at_zero_and_every_snapshot_carries_it():
+    s = _defaults()
+    assert s.blend_distance == 0.0 and s.snapshot(IIWA.hard_limits).blendDistance == 0.0  # exact stop
+    blended = s.with_blend_distance(0.02)
+    assert blended.snapshot(IIWA.hard_limits).blendDistance == 0.02
+    assert s.blend_distance == 0.0  # a frozen value: the old one is unchanged
+    # the other setters keep it, and it keeps them
+    assert blended.with_speed_joint(30).snapshot(IIWA.hard_limits).blendDistance == 0.02
+    assert blended.with_speed_joint(30).with_blend_distance(0.0).spd_ratio_joint == 30
+    assert s.with_blend_distance(MAX_BLEND_DISTANCE).blend_distance == MAX_BLEND_DISTANCE  # the bound itself
+
+
+@pytest.mark.parametrize("bad", [-1e-6, -0.02, math.nan, math.inf, -math.inf, MAX_BLEND_DISTANCE + 1e-6, 1.0])
+def test_a_bad_blend_distance_names_the_field_and_changes_nothing(bad: float):
+    s = _defaults().with_blend_distance(0.005)
+    with pytest.raises(WireError) as err:
+        s.with_blend_distance(bad)
+    assert err.value.field == "distance"
+    assert "m" in err.value.reason and s.blend_distance == 0.005
+
+
+def _ext() -> tuple[CommandExt, CommandMiddle, list[Settings]]:
+    heard: list[Settings] = []
+    # the setters touch only the settings: no core, feedback or kinematics needed
+    middle = CommandMiddle(None, _defaults(), None, None, heard.append)  # type: ignore[arg-type]
+    return CommandExt(middle), middle, heard
+
+
+def _call(ext: CommandExt, name: str, args: dict) -> tuple[int, str, dict]:
+    """What a client gets from ``Ext/<name>``: decoded as the RPC layer does, MessagePack."""
+    reply = answer(EXT[name], msgpack.packb(args), Encoding.MSGPACK, ext, name)
+    return int(reply.id), reply.comment, dict(reply.outs) if reply.ok else {}
+
+
+def test_the_ext_operations_set_and_get_it_with_the_reply_rules():
+    ext, middle, heard = _ext()
+    assert _call(ext, OP.getBlendDistance, {}) == (ReturnCode.OK, "OK", {"distance": 0.0})
+    assert _call(ext, OP.setBlendDistance, {"distance": 0.02})[0] == ReturnCode.OK
+    assert _call(ext, OP.getBlendDistance, {})[2] == {"distance": 0.02}
+    assert middle.settings.snapshot(IIWA.hard_limits).blendDistance == 0.02 and heard[-1].blend_distance == 0.02
+    for bad in (-0.001, math.nan, 0.5):
+        code, comment, _ = _call(ext, OP.setBlendDistance, {"distance": bad})
+        assert code == ReturnCode.VALUE_ERR and comment.startswith("distance: "), comment
+    code, comment, _ = _call(ext, OP.setBlendDistance, {"distance": "far"})
+    assert code == ReturnCode.VALUE_ERR and "distance" in comment, comment
+    assert _call(ext, OP.getBlendDistance, {})[2] == {"distance": 0.02} and len(heard) == 1  # unchanged
+    # a Middle setter after it keeps it: both change the one settings value
+    middle.setSpeedJoint(40)
+    assert middle.settings.blend_distance == 0.02 and middle.settings.spd_ratio_joint == 40
+
+
+# ---------------------------------------------------------------------------------------------- the planner
 
 
 def _settings(d: float) -> MotionSettings:
