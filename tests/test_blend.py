@@ -18,8 +18,10 @@ import numpy as np
 import pytest
 
 from jara_arm.robots import Obstacle, robot
+from jara_arm.schema import codec
+from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding
-from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.operations import EXT, MAX_BLEND_DISTANCE, OP
 from jara_arm.schema.planner import ControlAction, MotionRequest, MotionSettings
@@ -32,6 +34,11 @@ from jara_arm.services.planner.streamer import Streamer
 from jara_arm.services.planner.trajectory import PlannedMotion
 from jara_arm.services.runtime.rpc import answer
 
+from .support import wait_until
+from .test_middle import HOLD_WINDOW, TOL_PATH, line_deviation, rel
+from .test_middle import Arm as MiddleArm
+
+pytestmark = pytest.mark.timeout(180)
 IIWA = robot("iiwa")
 DT = IIWA.cmd_cycle
 D = 0.02  # [m] the blend distance of most tests
@@ -268,3 +275,132 @@ def test_a_pause_before_the_cut_gives_the_exact_stop(corner):
     rest = np.array(_send(st))
     n = len(second.q) - 1
     np.testing.assert_array_equal(rest[-n:], second.q[1:])  # the exact-stop motion from the corner
+
+
+# ---------------------------------------------------------------------------------------------- live
+
+LEG = 0.12  # [m] each side of the square
+#: the three LINs: +x, +y, -x (robot frame), two right-angle corners between them
+LEGS = (np.array([LEG, 0.0, 0.0]), np.array([0.0, LEG, 0.0]), np.array([-LEG, 0.0, 0.0]))
+V_THROUGH = 0.02  # [m/s] the flange's speed stays above this within d of a blended corner
+V_REST = 1e-3  # [m/s] at an exact stop it falls below this
+TOL_BLEND = 1e-3  # [m] what feedback may add to d (issue 15: within d of the corner)
+
+
+class Arm(MiddleArm):
+    """``test_middle.Arm`` with the blend distance reset to 0 and the feedback's servo times kept."""
+
+    def ext(self, name, args=None):
+        return self.client.ext(name, args)
+
+    def reset(self) -> None:
+        self.ok(self.ext(OP.setBlendDistance, {"distance": 0.0}))
+        super().reset()
+
+    def recorded_timed(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t [s], joints)`` of every feedback sample since ``record()``."""
+        msgs = [codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()) for s in iter(self.fb.try_recv, None)]
+        return np.array([m.tm.to_seconds() for m in msgs]), np.array([m.pos for m in msgs])
+
+    def square(self, d: float) -> np.ndarray:
+        """With blend distance ``d`` [m], the three LINs queued back to back; the polyline's corners (4, 3)."""
+        self.ok(self.ext(OP.setBlendDistance, {"distance": d}))
+        assert self.ext(OP.getBlendDistance)["distance"] == d
+        p0 = self.pose()[:, 3]
+        self.record()
+        for leg in LEGS:
+            self.ok(self.middle(OP.moveLinearCartesianRel, {"carPoint": rel(*leg)}))
+        return np.array([p0, *(p0 + np.cumsum(LEGS, axis=0))])
+
+    def flange_now(self) -> np.ndarray:
+        """[m] the flange at the newest feedback sample."""
+        return self.points(self.servo_time.sample()[1][None])[0]
+
+    def when_within(self, corner: np.ndarray, radius: float) -> None:
+        """Until the flange is within ``radius`` [m] of ``corner``."""
+        wait_until(lambda: np.linalg.norm(self.flange_now() - corner) < radius, 10.0, 0.0,
+                   f"the flange within {radius * 1e3:.0f} mm of the corner")
+
+
+@pytest.fixture(scope="module", params=["iiwa", "panda"])
+def robot_name(request: pytest.FixtureRequest) -> str:
+    """The robots of ``live`` and ``arm`` (conftest.py): one system each, with this module's ``Arm``."""
+    return str(request.param)
+
+
+def _flange_speed(arm: Arm) -> tuple[np.ndarray, np.ndarray]:
+    """Flange positions [m] of the recorded feedback, and the speed [m/s] between each two of them."""
+    t, q = arm.recorded_timed()
+    pts = arm.points(q)
+    dt = np.diff(t)
+    assert np.all(dt > 0.0), "feedback samples out of order or repeated"
+    return pts, np.linalg.norm(np.diff(pts, axis=0), axis=1) / dt
+
+
+def test_live_blended_square_never_stops_at_its_corners_and_stays_within_d(arm: Arm):
+    d = 0.02
+    corners = arm.square(d)
+    arm.idle()
+    pts, speed = _flange_speed(arm)
+    assert np.linalg.norm(pts[-1] - corners[-1]) < TOL_PATH  # at the end
+    dev = _distance_to_polyline(pts, corners)
+    assert dev.max() <= d + TOL_BLEND, f"{dev.max() * 1e3:.2f} mm off the commanded polyline"
+    for c in corners[1:3]:
+        near = np.linalg.norm(pts[:-1] - c, axis=1) <= d  # the speed from each sample to the next
+        assert near.any(), "the flange never came within d of the corner"
+        assert speed[near].min() > V_THROUGH, f"{speed[near].min():.4f} m/s at the corner: it stopped"
+        closest = np.linalg.norm(pts - c, axis=1).min()
+        assert 1e-3 < closest <= d + TOL_BLEND, f"closest to the corner {closest * 1e3:.2f} mm: not cut"
+
+
+def test_live_zero_distance_stops_at_each_corner(arm: Arm):
+    corners = arm.square(0.0)
+    arm.idle()
+    pts, speed = _flange_speed(arm)
+    assert np.linalg.norm(pts[-1] - corners[-1]) < TOL_PATH
+    assert _distance_to_polyline(pts, corners).max() < TOL_PATH  # on the commanded lines
+    for c in corners[1:3]:
+        near = np.linalg.norm(pts[:-1] - c, axis=1) <= 2e-3
+        assert near.any() and speed[near].min() < V_REST, f"{speed[near].min():.4f} m/s: no stop at the corner"
+
+
+def test_live_pause_in_a_blend_holds_and_resume_reaches_the_end(arm: Arm):
+    d = 0.02
+    corners = arm.square(d)
+    arm.when_within(corners[1], 0.6 * d)  # past the cut (d before the corner), in the blend
+    reply = arm.middle(OP.pause)
+    arm.ok(reply)
+    assert "blend" in reply.comment, reply.comment  # the streamer braked in the blend, not on a path
+    wait_until(lambda: arm.common(OP.getState)["state"] & StateBit.PAUSED, 2.0, what="paused bit")
+    arm.servo_time.settled()  # braked to rest
+    held = arm.flange_now()
+    arm.servo_time.passes(HOLD_WINDOW)
+    assert np.linalg.norm(arm.flange_now() - held) < 1e-5  # holds while paused
+    assert np.linalg.norm(held - corners[1]) < 2 * d  # near the corner it was blending
+    arm.ok(arm.middle(OP.resume))
+    arm.idle()
+    state = arm.common(OP.getState)["state"]
+    assert not state & (StateBit.PAUSED | StateBit.MOVING | StateBit.ALARM)
+    assert np.linalg.norm(arm.pose()[:, 3] - corners[-1]) < TOL_PATH  # the queue ran on to its end
+
+
+def test_live_stop_in_a_blend_ends_at_rest_and_the_queue_works_after(arm: Arm):
+    d = 0.02
+    corners = arm.square(d)
+    arm.when_within(corners[1], 0.6 * d)
+    arm.ok(arm.middle(OP.stop))
+    arm.idle()
+    arm.servo_time.settled()  # at rest, not creeping
+    rest = arm.flange_now()
+    arm.servo_time.passes(HOLD_WINDOW)  # a motion the stop failed to discard would move the arm in it
+    assert np.linalg.norm(arm.flange_now() - rest) < 1e-5
+    state = arm.common(OP.getState)["state"]
+    assert not state & (StateBit.MOVING | StateBit.PAUSED | StateBit.ALARM | StateBit.BUFFER_FULL)
+    assert np.linalg.norm(rest - corners[1]) < 2 * d  # stopped by the corner, not on along the queue
+    assert np.linalg.norm(rest - corners[3]) > LEG / 2
+    # a motion after the stop runs from where the arm rests
+    arm.record()
+    arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(0.0, 0.0, 0.03)}))
+    arm.idle()
+    assert np.linalg.norm(arm.pose()[:, 3] - (rest + [0.0, 0.0, 0.03])) < TOL_PATH
+    assert line_deviation(arm.points(arm.recorded()), rest, rest + [0.0, 0.0, 0.03]) < TOL_PATH
