@@ -181,8 +181,8 @@ def main() -> int:
     base = float(np.mean([r.cycle for r in results[distances[0]]]))
     print(f"blend: {args.robot}, {len(CYCLE)} motions a cycle (LIN, CIRC; pick and place exact stops), "
           f"{args.repeat} cycles each, speed ratios 100 %")
-    print("| d [mm] | cycle mean [s] | best [s] | vs d = " f"{distances[0] * 1e3:g} mm | closest approach to a blended corner, "
-          "the largest [mm] | lowest speed within d of one [m/s] |")
+    print(f"| d [mm] | cycle mean [s] | best [s] | vs d = {distances[0] * 1e3:g} mm "
+          "| closest approach to a blended corner, the largest [mm] | lowest speed within d of one [m/s] |")
     print("| --- | --- | --- | --- | --- | --- |")
     for d, runs in results.items():
         mean = float(np.mean([r.cycle for r in runs]))
