@@ -1,4 +1,4 @@
-"""``jara-arm call OP [JSON]``: any operation of an arm by its IDL name, its reply printed as JSON.
+"""``jara-arm call OP [JSON]``: any operation of an arm by its name (IDL or Ext), its reply printed as JSON.
 
 The operation is looked up in ``schema.operations`` and its parameters are
 checked with the codec before anything is sent, so that a typo or a wrong type
@@ -19,7 +19,7 @@ from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, WireError
-from jara_arm.schema.operations import COMMON, MIDDLE, TABLES, Interface, Operation
+from jara_arm.schema.operations import ALL, COMMON, Operation
 
 from .client import ArmClient
 
@@ -42,8 +42,8 @@ class Call:
 
 
 def operation_names(servo: bool = False) -> tuple[str, ...]:
-    """Every name ``call`` takes: the Common operations, and the Middle ones unless ``servo``."""
-    return tuple(COMMON) if servo else (*COMMON, *MIDDLE)
+    """Every name ``call`` takes: the Common operations, and the Middle and Ext ones unless ``servo``."""
+    return tuple(COMMON) if servo else tuple(op.name for op in ALL)
 
 
 def close_matches(name: str, servo: bool = False) -> list[str]:
@@ -56,13 +56,12 @@ def close_matches(name: str, servo: bool = False) -> list[str]:
 
 
 def find_operation(name: str, servo: bool = False) -> Operation:
-    """The operation ``name`` (Common or Middle; Common only for the servo); CallError with close matches."""
-    for interface in (Interface.COMMON,) if servo else (Interface.COMMON, Interface.MIDDLE):
-        op = TABLES[interface].get(name)
-        if op is not None:
-            return op
-    if servo and name in MIDDLE:
-        raise CallError(f"the servo serves only the Common operations, not {name!r} (Middle): "
+    """The operation ``name`` (Common, Middle or Ext; Common only for the servo); CallError with close matches."""
+    found = next((op for op in ALL if op.name == name), None)
+    if found is not None and (not servo or found.name in COMMON):
+        return found
+    if servo and found is not None:
+        raise CallError(f"the servo serves only the Common operations, not {name!r} ({found.interface.value}): "
                         f"drop --servo, or call one of {', '.join(COMMON)}")
     matches = close_matches(name, servo)
     hint = f"did you mean {', '.join(matches)}?" if matches else \

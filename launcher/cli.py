@@ -145,8 +145,8 @@ class _Parsers:
         _client_zenoh_arguments(self.demo)
 
         self.call = sub.add_parser(
-            "call", help="call any operation by its IDL name and print the reply as JSON",
-            description="Call one of the Common or Middle operations (Servo/Common with --servo) and "
+            "call", help="call any operation by its name (IDL or Ext) and print the reply as JSON",
+            description="Call one of the Common, Middle or Ext operations (Servo/Common with --servo) and "
             "print the reply {id, comment, <out parameters>} as JSON; exit 1 if its id is not OK. "
             "The parameters are checked here first: a mistake is reported with the operation's "
             "parameter list, and nothing is sent.",
@@ -157,7 +157,7 @@ class _Parsers:
                                help="ask the servo (Servo/Common/<op>) instead of the command service")
         self.call.add_argument("--timeout", type=positive_float, default=10.0, metavar="S",
                                help="wait this long for the reply [s] (default: 10)")
-        self.call.add_argument("op", metavar="OP", help="the operation's IDL name, e.g. movePTPJointAbs")
+        self.call.add_argument("op", metavar="OP", help="the operation's name (IDL, or Ext), e.g. movePTPJointAbs")
         self.call.add_argument("json", nargs="?", metavar="JSON",
                                help="the in parameters as a JSON object (default: none)")
         _client_zenoh_arguments(self.call)

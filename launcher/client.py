@@ -27,7 +27,7 @@ class ClientError(JaraArmError, RuntimeError):
 
 
 class ArmClient:
-    """Calls ``Common``, ``Middle`` and ``Servo/Common`` operations of one arm."""
+    """Calls ``Common``, ``Middle``, ``Ext`` and ``Servo/Common`` operations of one arm."""
 
     def __init__(self, session: zenoh.Session, arm: str = "arm0", timeout: float = 10.0) -> None:
         self.session = session
@@ -65,6 +65,9 @@ class ArmClient:
 
     def middle(self, name: str, args: Mapping[str, Any] | None = None) -> Reply:
         return self.call(Interface.MIDDLE, name, args)
+
+    def ext(self, name: str, args: Mapping[str, Any] | None = None) -> Reply:
+        return self.call(Interface.EXT, name, args)
 
     def servo(self, name: str, args: Mapping[str, Any] | None = None) -> Reply:
         return self.call(Interface.COMMON, name, args, servo=True)

@@ -11,10 +11,10 @@ from .codec import Encoding, Reply, decode_reply, decode_request, encode_reply, 
 from .codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from .errors import JaraArmError, UnknownOperationError, WireError
 from .keys import ArmKeys, Service
-from .operations import COMMON, MIDDLE, OP, Interface, Operation, operation
+from .operations import COMMON, EXT, MIDDLE, OP, Interface, Operation, operation
 
 __all__ = [
-    "AlarmCode", "AlarmType", "ArmKeys", "COMMON", "Encoding", "Interface", "JaraArmError", "MIDDLE",
+    "AlarmCode", "AlarmType", "ArmKeys", "COMMON", "EXT", "Encoding", "Interface", "JaraArmError", "MIDDLE",
     "OP", "Operation", "Reply", "ReturnCode", "Service", "StateBit", "UnknownOperationError",
     "WireError", "decode_reply", "decode_request", "encode_reply", "encode_request", "operation",
 ]

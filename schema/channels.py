@@ -37,8 +37,8 @@ def _message_types() -> Mapping[str, StructType[Any]]:
         (a.servo_health, messages.LOOP_HEALTH), (a.monitor_alarms, alarms.ALARM_LIST),
         (a.monitor_report, alarms.ALARM_REPORT), (a.command_settings, planner.MOTION_SETTINGS),
         (a.heartbeat(), alarms.HEARTBEAT), (a.servo_world, messages.SERVO_WORLD), (a.planner_path, planner.PLANNED_PATH),
-        *((a.traced(q), messages.CALL_TRACE) for q in (a.interface(Interface.COMMON), a.interface(Interface.MIDDLE),
-                                                      a.servo_common(), a.monitor_common())),
+        *((a.traced(q), messages.CALL_TRACE) for q in (*(a.interface(i) for i in Interface), a.servo_common(),
+                                                      a.monitor_common())),
     )
     return MappingProxyType({key_info(key).key: kind for key, kind in pairs})
 

@@ -101,9 +101,10 @@ class ArmKeys:
 
     # -- public contract (WIRE.md) -------------------------------------------------
     @_key('queryable', 'command', 'request map → reply map', KeyEncoding.AS_REQUEST,
-          examples=((Interface.COMMON, None), (Interface.MIDDLE, None)))
+          examples=((Interface.COMMON, None), (Interface.MIDDLE, None), (Interface.EXT, None)))
     def interface(self, interface: Interface, op: str | None = None) -> str:
-        """``Common/<op>`` or ``Middle/<op>`` (command service); ``op=None`` gives ``/*``."""
+        """``Common/<op>``, ``Middle/<op>`` or ``Ext/<op>`` (command service; ``Ext``: model-specific
+        extensions outside the IDL); ``op=None`` gives ``/*``."""
         if op is not None:
             operation(interface, op)
         return f"{self.root}/{interface.value}/{op or '*'}"
@@ -160,12 +161,12 @@ class ArmKeys:
     @_key('publisher', 'the service answering the call',
           '`CallTrace` `{t, request, reply}` of every call answered on `<served>/<op>`, only while something '
           'subscribes', KeyEncoding.JSON,
-          examples=((Interface.COMMON.value, None), (Interface.MIDDLE.value, None),
+          examples=((Interface.COMMON.value, None), (Interface.MIDDLE.value, None), (Interface.EXT.value, None),
                     (f"Servo/{Interface.COMMON.value}", None), (f"Monitor/{Interface.COMMON.value}", None)))
     def trace(self, served: str, op: str | None = None) -> str:
         """``trace/<served>/<op>``: the calls answered on ``<served>/<op>`` of this arm, ``served`` being
         the interface part of an operation queryable (:meth:`interface`, :meth:`servo_common`,
-        :meth:`monitor_common`): ``Common``, ``Middle``, ``Servo/Common`` or ``Monitor/Common``;
+        :meth:`monitor_common`): ``Common``, ``Middle``, ``Ext``, ``Servo/Common`` or ``Monitor/Common``;
         ``op=None`` gives ``/*``. Queries reach no one but their queryable: the serving service
         publishes each call here so that a recorder sees it."""
         if served not in self._served():
@@ -177,8 +178,7 @@ class ArmKeys:
 
     def _served(self) -> tuple[str, ...]:
         """The interface parts of the operation queryables, relative to the arm (``Servo/Common``…)."""
-        queryables = (self.interface(Interface.COMMON), self.interface(Interface.MIDDLE), self.servo_common(),
-                      self.monitor_common())
+        queryables = (*(self.interface(i) for i in Interface), self.servo_common(), self.monitor_common())
         return tuple(k.removeprefix(f"{self.root}/").removesuffix("/*") for k in queryables)
 
     def traced(self, queryable: str) -> str:

@@ -1,9 +1,12 @@
-"""The 44 operations of the two IDL interfaces (SPEC.md §6-7), as data.
+"""The 44 operations of the two IDL interfaces (SPEC.md §6-7), and our extensions, as data.
 
 ``COMMON`` (9 operations, served at ``Common/<op>`` by the command service and
 at ``Servo/Common/<op>`` by the servo) and ``MIDDLE`` (35 operations, served at
-``Middle/<op>``). Every parameter carries its wire type and unit; services and
-clients look operations up here and never spell their names by hand.
+``Middle/<op>``) are the IDL's (``IDL``). ``EXT`` (served at ``Ext/<op>`` by the
+command service) is not: model-specific operations of this implementation, with
+the same reply rules (``RETURN_ID``, ``VALUE_ERR`` naming the field). Every
+parameter carries its wire type and unit; services and clients look operations
+up here and never spell their names by hand.
 """
 
 from __future__ import annotations
@@ -20,14 +23,16 @@ from .wire_types import Member
 
 
 class Interface(enum.Enum):
-    """An IDL interface; its value is the key-expression chunk it is served under."""
+    """An interface; its value is the key-expression chunk it is served under."""
 
     COMMON = "Common"
     MIDDLE = "Middle"
+    EXT = "Ext"  #: model-specific extensions, outside the IDL
 
     @property
-    def idl_name(self) -> str:
-        return f"ManipulatorCommonInterface_{self.value}"
+    def idl_name(self) -> str | None:
+        """``ManipulatorCommonInterface_<value>``; None for ``EXT``, which the IDL does not have."""
+        return None if self is Interface.EXT else f"ManipulatorCommonInterface_{self.value}"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,7 +53,7 @@ def _op(interface: Interface, name: str, doc: str, inputs: Iterable[Member] = ()
     return Operation(name, interface, tuple(inputs), tuple(outputs), doc, motion)
 
 
-_C, _M = Interface.COMMON, Interface.MIDDLE
+_C, _M, _E = Interface.COMMON, Interface.MIDDLE, Interface.EXT
 _CAR = "m, rad"
 _AXIS = "rad or m"
 
@@ -137,12 +142,33 @@ _MIDDLE = (
     _op(_M, "goHome", "PTP to the home position.", motion=True),
 )
 
+#: Largest blend distance ``setBlendDistance`` takes [m]: a blend leaves the path at most this far
+#: before a corner and rejoins at most this far after it; beyond ~0.1 m a blend would replace most
+#: of a typical pick-and-place move, and the path it takes is no longer one a user can picture.
+MAX_BLEND_DISTANCE = 0.1
+
+_EXT = (
+    _op(_E, "setBlendDistance", "Model-specific extension (not in the IDL): blend distance d of the motions "
+        f"accepted from now on, 0 .. {MAX_BLEND_DISTANCE:g} m. With d > 0 a motion queued behind another "
+        "leaves that motion's path at most d before their common corner and joins its own path at most d "
+        "after it, without stopping (jerk-limited, within the joint limits, collision-checked); where no "
+        "such blend exists the arm stops at the corner. 0 (the default): exact stop at every corner, "
+        "as the specification says.",
+        inputs=[Member("distance", w.DOUBLE, "m", "0 = exact stop")]),
+    _op(_E, "getBlendDistance", "Model-specific extension (not in the IDL): the blend distance set with "
+        "setBlendDistance.", outputs=[Member("distance", w.DOUBLE, "m", "0 = exact stop")]),
+)
+
 COMMON: Mapping[str, Operation] = MappingProxyType({op.name: op for op in _COMMON})
 MIDDLE: Mapping[str, Operation] = MappingProxyType({op.name: op for op in _MIDDLE})
+EXT: Mapping[str, Operation] = MappingProxyType({op.name: op for op in _EXT})
 TABLES: Mapping[Interface, Mapping[str, Operation]] = MappingProxyType(
-    {Interface.COMMON: COMMON, Interface.MIDDLE: MIDDLE}
+    {Interface.COMMON: COMMON, Interface.MIDDLE: MIDDLE, Interface.EXT: EXT}
 )
-ALL: tuple[Operation, ...] = _COMMON + _MIDDLE
+#: The 44 operations of the IDL.
+IDL: tuple[Operation, ...] = _COMMON + _MIDDLE
+#: Every operation served: the IDL's and the extensions.
+ALL: tuple[Operation, ...] = IDL + _EXT
 
 
 def operation(interface: Interface, name: str) -> Operation:
@@ -205,6 +231,9 @@ class OP:
     setHome: Final = "setHome"
     getHome: Final = "getHome"
     goHome: Final = "goHome"
+    # Ext (not in the IDL)
+    setBlendDistance: Final = "setBlendDistance"
+    getBlendDistance: Final = "getBlendDistance"
 
 
 _spelled = {name for name in vars(OP) if not name.startswith("_")}

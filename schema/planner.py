@@ -62,6 +62,9 @@ class MotionSettings:
     baseOffset: HgMatrix = wire(w.HG_MATRIX)  # robot frame seen from the arm frame
     controlPointOffset: HgMatrix = wire(w.HG_MATRIX)  # control point in the flange frame
     home: JointPos = wire(w.JOINT_POS, "rad or m")  # per arm axis
+    #: Extension (model-specific, outside the IDL; ``Ext/setBlendDistance``): how far before and after a
+    #: corner between queued motions the arm may leave the path; 0 = exact stop (the specification's)
+    blendDistance: float = wire(w.DOUBLE, "m", default=0.0)
 
 
 MOTION_SETTINGS = struct(MotionSettings, doc="Internal: the settings a motion was accepted with.")

@@ -264,6 +264,7 @@ DEFAULT_SETTINGS: tuple[tuple[Interface, str, dict], ...] = (
     (Interface.MIDDLE, OP.setBaseOffset, {"offset": hg_matrix()}),
     (Interface.MIDDLE, OP.setControlPointOffset, {"offset": hg_matrix()}),
     (Interface.MIDDLE, OP.setHome, {"jointPoint": IIWA.ready_pose}),
+    (Interface.EXT, OP.setBlendDistance, {"distance": 0.0}),
 )
 
 
@@ -633,6 +634,7 @@ def test_every_motion_carries_the_settings_accepted_before_it(fake):
                                                    "zLimit": LimitValue(1, 0)}),
                        (OP.setHome, {"jointPoint": (0.1,) * N})):
         rig.ok(Interface.MIDDLE, name, args)
+    rig.ok(Interface.EXT, OP.setBlendDistance, {"distance": 0.02})
     rig.ok(Interface.MIDDLE, OP.movePTPJointAbs, {"jointPoints": (0.2,) * N})
     car = CarPosWithElbow(hg_matrix(rot("x", 1.0), (0.4, 0.0, 0.5)), 0.3, 0)
     rig.ok(Interface.MIDDLE, OP.moveCircularCartesianAbs, {"carPointR": car, "carPointT": car})
@@ -649,6 +651,7 @@ def test_every_motion_carries_the_settings_accepted_before_it(fake):
     assert s.softLimitCartesian == (LimitValue(1, -1), LimitValue(1, -1), LimitValue(1, 0))
     assert np.allclose(s.baseOffset, b) and np.allclose(s.controlPointOffset, tool)
     assert s.home == (0.1,) * N
+    assert s.blendDistance == 0.02 == second.settings.blendDistance
     rig.ok(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 5})
     rig.ok(Interface.MIDDLE, OP.goHome)
     assert peers.plans[-1].settings.spdRatioJoint == 5 and peers.plans[-1].args == {}

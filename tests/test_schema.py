@@ -13,7 +13,7 @@ from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import AlarmType, ReturnCode
 from jara_arm.schema.errors import UnknownOperationError, WireError
-from jara_arm.schema.operations import ALL, COMMON, MIDDLE, Interface, operation
+from jara_arm.schema.operations import ALL, COMMON, EXT, IDL, MIDDLE, Interface, operation
 from jara_arm.schema.types import (Alarm, CarPosWithElbow, CartesianSpeed, LimitValue, ManipInfo, Time,
                                    TimedJointPos, hg_matrix)
 
@@ -58,7 +58,9 @@ def same(a, b) -> bool:
 
 
 def test_operation_table_is_the_idl():
-    assert len(COMMON) == 9 and len(MIDDLE) == 35 and len(ALL) == 44
+    assert len(COMMON) == 9 and len(MIDDLE) == 35 and len(IDL) == 44
+    assert set(EXT) == {"setBlendDistance", "getBlendDistance"} and len(ALL) == 46  # outside the IDL
+    assert Interface.EXT.idl_name is None and Interface.MIDDLE.idl_name == "ManipulatorCommonInterface_Middle"
     assert {op.name for op in ALL if op.motion} == {
         "closeGripper", "moveGripper", "moveLinearCartesianAbs", "moveLinearCartesianRel",
         "movePTPCartesianAbs", "movePTPCartesianRel", "movePTPJointAbs", "movePTPJointRel",

@@ -1,4 +1,4 @@
-"""The command service (middle level): ``Common`` and ``Middle``, settings, state.
+"""The command service (middle level): ``Common``, ``Middle`` and ``Ext``, settings, state.
 
 ``python -m jara_arm.services.command --arm arm0 --robot iiwa --mode client --connect tcp/127.0.0.1:7447``
 """
@@ -12,7 +12,7 @@ from jara_arm.schema import codec
 from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.keys import Service
 from jara_arm.schema.messages import STATE_MESSAGE, StateMessage
-from jara_arm.schema.operations import COMMON, MIDDLE, Interface
+from jara_arm.schema.operations import COMMON, EXT, MIDDLE, Interface
 from jara_arm.services.runtime.arguments import positive_float, positive_int
 from jara_arm.services.runtime.monitor_link import MonitorLink
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
@@ -21,6 +21,7 @@ from jara_arm.services.runtime.wire import Publication
 from .cartesian import CartesianFeedback, reach
 from .common import CommandCommon
 from .core import Core
+from .ext import CommandExt
 from .feedback import JointFeedback
 from .links import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT, PlannerLink, ServoLink
 from .middle import CommandMiddle
@@ -48,7 +49,7 @@ DEFAULT_RT_PRIORITY = 0
 
 
 class CommandService(ArmService):
-    """``Common`` and ``Middle`` of one arm, its state and its settings."""
+    """``Common``, ``Middle`` and ``Ext`` of one arm, its state and its settings."""
 
     SERVICE = Service.COMMAND
     REALTIME_PRIORITY = DEFAULT_RT_PRIORITY
@@ -83,8 +84,9 @@ class CommandService(ArmService):
         settings_pub.republish()
         ctx.every(SETTINGS_PERIOD, settings_pub.republish)
         ctx.serve(keys.interface(Interface.COMMON), COMMON, CommandCommon(core, feedback), "command-common")
-        ctx.serve(keys.interface(Interface.MIDDLE), MIDDLE,
-                  CommandMiddle(core, settings, feedback, cartesian, settings_pub.changed), "command-middle")
+        middle = CommandMiddle(core, settings, feedback, cartesian, settings_pub.changed)
+        ctx.serve(keys.interface(Interface.MIDDLE), MIDDLE, middle, "command-middle")
+        ctx.serve(keys.interface(Interface.EXT), EXT, CommandExt(middle), "command-ext")
         alarms = core.monitor.alarm_list()  # a restarted command knows the active alarms at once
         if alarms is not None:
             tracker.on_alarms(alarms)

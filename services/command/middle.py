@@ -9,6 +9,7 @@ pause, resume and stop go to the planner's control.
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable
 from typing import Any
 
@@ -46,6 +47,7 @@ class CommandMiddle:
         self.core = core
         self._on_settings = on_settings
         self._settings = settings
+        self._settings_lock = threading.Lock()  # Ext's setters change the settings from another thread
         self._feedback = feedback
         self._cartesian = cartesian  # used on this interface's RPC thread only
 
@@ -60,6 +62,12 @@ class CommandMiddle:
         self._settings = value
         if changed and self._on_settings is not None:
             self._on_settings(value)
+
+    def change_settings(self, change: Callable[[Settings], Settings]) -> None:
+        """``settings = change(settings)`` as one step for every thread (Middle's and Ext's setters);
+        a WireError from ``change`` leaves them as they were."""
+        with self._settings_lock:
+            self.settings = change(self.settings)
 
     # -- motions ------------------------------------------------------------------
     def movePTPJointAbs(self, jointPoints: JointPos) -> Reply:
@@ -191,22 +199,22 @@ class CommandMiddle:
         return ok(speed=self.settings.max_speed_cartesian)
 
     def setMaxSpeedCartesian(self, speed: CartesianSpeed) -> Reply:
-        self.settings = self.settings.with_max_speed_cartesian(speed)
+        self.change_settings(lambda s: s.with_max_speed_cartesian(speed))
         return ok()
 
     def getMaxSpeedJoint(self) -> Reply:
         return ok(speed=self.settings.max_speed_joint)
 
     def setMaxSpeedJoint(self, speed: tuple[float, ...]) -> Reply:
-        self.settings = self.settings.with_max_speed_joint(speed)
+        self.change_settings(lambda s: s.with_max_speed_joint(speed))
         return ok()
 
     def setSpeedCartesian(self, spdRatio: int) -> Reply:
-        self.settings = self.settings.with_speed_cartesian(spdRatio)
+        self.change_settings(lambda s: s.with_speed_cartesian(spdRatio))
         return ok()
 
     def setSpeedJoint(self, spdRatio: int) -> Reply:
-        self.settings = self.settings.with_speed_joint(spdRatio)
+        self.change_settings(lambda s: s.with_speed_joint(spdRatio))
         return ok()
 
     # -- acceleration times -------------------------------------------------------------
@@ -214,22 +222,22 @@ class CommandMiddle:
         return ok(aclTime=self.settings.min_accel_time_cartesian)
 
     def setMinAccelTimeCartesian(self, aclTime: float) -> Reply:
-        self.settings = self.settings.with_min_accel_time_cartesian(aclTime)
+        self.change_settings(lambda s: s.with_min_accel_time_cartesian(aclTime))
         return ok()
 
     def getMinAccelTimeJoint(self) -> Reply:
         return ok(aclTime=self.settings.min_accel_time_joint)
 
     def setMinAccelTimeJoint(self, aclTime: float) -> Reply:
-        self.settings = self.settings.with_min_accel_time_joint(aclTime)
+        self.change_settings(lambda s: s.with_min_accel_time_joint(aclTime))
         return ok()
 
     def setAccelTimeCartesian(self, aclTime: float) -> Reply:
-        self.settings = self.settings.with_accel_time_cartesian(aclTime)
+        self.change_settings(lambda s: s.with_accel_time_cartesian(aclTime))
         return ok()
 
     def setAccelTimeJoint(self, aclTime: float) -> Reply:
-        self.settings = self.settings.with_accel_time_joint(aclTime)
+        self.change_settings(lambda s: s.with_accel_time_joint(aclTime))
         return ok()
 
     # -- limits and frames ------------------------------------------------------------------
@@ -238,18 +246,18 @@ class CommandMiddle:
         return ok(xLimit=x, yLimit=y, zLimit=z)
 
     def setSoftLimitCartesian(self, xLimit: LimitValue, yLimit: LimitValue, zLimit: LimitValue) -> Reply:
-        self.settings = self.settings.with_soft_limit_cartesian(xLimit, yLimit, zLimit)
+        self.change_settings(lambda s: s.with_soft_limit_cartesian(xLimit, yLimit, zLimit))
         return ok()
 
     def getBaseOffset(self) -> Reply:
         return ok(offset=self.settings.base_offset)
 
     def setBaseOffset(self, offset: HgMatrix) -> Reply:
-        self.settings = self.settings.with_base_offset(offset)
+        self.change_settings(lambda s: s.with_base_offset(offset))
         return ok()
 
     def setControlPointOffset(self, offset: HgMatrix) -> Reply:
-        self.settings = self.settings.with_control_point_offset(offset)
+        self.change_settings(lambda s: s.with_control_point_offset(offset))
         return ok()
 
     # -- home -------------------------------------------------------------------------------
@@ -265,5 +273,5 @@ class CommandMiddle:
             if not limits.ok:
                 return refuse(ReturnCode.NG, f"{OP.setHome} refused: joint soft limits unavailable: "
                               f"{limits.comment}")
-            self.settings = self.settings.with_home(jointPoint, limits["softLimit"])
+            self.change_settings(lambda s: s.with_home(jointPoint, limits["softLimit"]))
             return ok()

@@ -21,19 +21,22 @@ Defaults (DECISIONS.md, and the choices below):
   frame (it follows the base offset B and the control point offset C), which
   holds every pose the control point can take;
 * base offset and control point offset: identity;
-* home: the model's ready pose; ``setHome`` must lie within the joint soft limits.
+* home: the model's ready pose; ``setHome`` must lie within the joint soft limits;
+* blend distance (``Ext/setBlendDistance``, outside the IDL): 0 m, the
+  specification's exact stop; at most ``MAX_BLEND_DISTANCE``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from jara_arm.robots import RobotModel
 from jara_arm.schema.errors import WireError
-from jara_arm.schema.operations import OP
+from jara_arm.schema.operations import MAX_BLEND_DISTANCE, OP
 from jara_arm.schema.planner import MotionSettings
 from jara_arm.schema.types import IDENTITY, CartesianSpeed, HgMatrix, JointPos, LimitValue
 
@@ -53,7 +56,7 @@ _XYZ = ("xLimit", "yLimit", "zLimit")
 
 @dataclasses.dataclass(frozen=True, eq=False)  # holds arrays: compare members, not settings
 class Settings:
-    """Every value the Middle setters change (units in brackets)."""
+    """Every value the Middle (and Ext) setters change (units in brackets)."""
 
     axis_num: int
     rated_speed: tuple[float, ...]  # [rad/s or m/s] upper bound of max speeds, per arm axis
@@ -71,6 +74,7 @@ class Settings:
     base_offset: HgMatrix = dataclasses.field(default_factory=lambda: IDENTITY)  # read-only
     control_point_offset: HgMatrix = dataclasses.field(default_factory=lambda: IDENTITY)
     home: JointPos = ()  # [rad or m]
+    blend_distance: float = 0.0  # [m] Ext; 0: exact stop at every corner
 
     @classmethod
     def defaults(cls, robot: RobotModel, reach: float) -> "Settings":
@@ -102,7 +106,7 @@ class Settings:
             accelTimeJoint=self.accel_time_joint, accelTimeCartesian=self.accel_time_cartesian,
             softLimitJoint=tuple(soft_limit_joint), softLimitCartesian=self.cartesian_limits,
             baseOffset=self.base_offset, controlPointOffset=self.control_point_offset,
-            home=self.home,
+            home=self.home, blendDistance=self.blend_distance,
         )
 
     # -- setters ---------------------------------------------------------------------
@@ -170,6 +174,14 @@ class Settings:
                 raise WireError(f"jointPoint[{i}]", f"J{i + 1}={q:.6g} is outside the joint soft limit "
                                 f"[{lim.lower:.6g}, {lim.upper:.6g}]")
         return dataclasses.replace(self, home=tuple(float(q) for q in jointPoint))
+
+    def with_blend_distance(self, distance: float) -> "Settings":
+        """``Ext/setBlendDistance``: 0 .. ``MAX_BLEND_DISTANCE`` [m]."""
+        if not math.isfinite(distance) or distance < 0.0:
+            raise WireError("distance", f"must be a finite length of 0 m or more, got {distance} m")
+        if distance > MAX_BLEND_DISTANCE:
+            raise WireError("distance", f"{distance} m is above the largest blend distance {MAX_BLEND_DISTANCE} m")
+        return dataclasses.replace(self, blend_distance=float(distance))
 
     def check_joint_points(self, field: str, values: Sequence[float]) -> None:
         """WireError naming ``field`` unless ``values`` has one entry per arm axis."""

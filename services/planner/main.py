@@ -120,7 +120,8 @@ class PlannerService:
             try:
                 start, generation = self.streamer.start_point()
                 t0 = time.perf_counter()
-                motion = self.planner.plan(req, start)
+                previous = self.streamer.last_motion() if req.settings.blendDistance > 0.0 else None
+                motion = self.planner.plan(req, start, previous)
             except PlanRefused as exc:
                 log.info("%s refused (%s): %s", req.op, exc.code.name, exc.comment)
                 return self._refused(exc.code, exc.comment)

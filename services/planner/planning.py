@@ -50,6 +50,7 @@ target's. What each family ignores of a pose is in ``families.py``.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections.abc import Callable, Sequence
 
@@ -68,6 +69,7 @@ from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, JointPos
 
 from . import families
+from .blend import UNBLENDED_OPS, Blend, BlendError, JointLimits, cut_points, joint_blend, state_at
 from .collision import DEFAULT_MARGIN, PathChecker
 from .elbow import elbow_speed_limit
 from .families import CartesianKind, CartesianRule, Orientation
@@ -82,6 +84,8 @@ from .profile import (
 )
 from .sampling import BatchFk, PathJoints, Tolerances, Unreachable
 from .trajectory import UNQUEUED, Joints, LineMap, PlannedMotion, TableMap
+
+log = logging.getLogger(__name__)
 
 #: IK tolerance at LIN / CIRC knots and for PTP-Cartesian targets [m] and [rad].
 IK_TOLERANCE = 1e-7
@@ -159,9 +163,12 @@ class MotionPlanner:
 
     # ------------------------------------------------------------------ entry
 
-    def plan(self, req: MotionRequest, start: Joints, *, preview: bool = True) -> PlannedMotion:
+    def plan(self, req: MotionRequest, start: Joints, previous: PlannedMotion | None = None, *,
+             preview: bool = True) -> PlannedMotion:
         """The motion ``req`` from ``start`` (wire joints); raises PlanRefused.
 
+        ``previous``: the queued motion that ends at ``start``, if any: with ``blendDistance`` > 0 the
+        motion also carries a blend of that corner (``blend.py``) when one passes every check.
         ``preview``: fill in ``PlannedMotion.preview``; the planning process leaves it out and sends it after
         the motion (a viewer's polyline is no part of the acceptance: it stays off the first command's path).
         """
@@ -180,6 +187,8 @@ class MotionPlanner:
             contact = self.collisions.check(planned.q)  # every motion passes here, before it is accepted
             if contact is not None:
                 raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {contact.describe()}")
+            if previous is not None and req.settings.blendDistance > 0.0:
+                planned = dataclasses.replace(planned, blend=self._blend(previous, planned, req.settings))
             return dataclasses.replace(planned, preview=self.preview(planned.q, req.settings)) if preview else planned
         except WireError as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
@@ -192,6 +201,60 @@ class MotionPlanner:
         rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), PREVIEW_POINTS)).round().astype(int))
         points: NDArray[np.float64] = self._fk.run(q[rows, :self.n], hg_to_se3(settings.controlPointOffset))[0]
         return points
+
+    # ------------------------------------------------------------------ blending
+
+    def _blend(self, previous: PlannedMotion, planned: PlannedMotion, s: MotionSettings) -> Blend | None:
+        """The blend of the corner between ``previous`` and ``planned``, or None (exact stop) when
+        there is none that passes every check: never a reason to refuse the motion."""
+        d = s.blendDistance
+        if previous.op in UNBLENDED_OPS or planned.op in UNBLENDED_OPS:
+            return None
+        if not np.allclose(previous.end, planned.start, rtol=0.0, atol=1e-12):
+            return None  # not the corner this motion starts from
+        tool = hg_to_se3(s.controlPointOffset)
+        pts_prev = self._fk.run(previous.q[:, :self.n], tool)[0]
+        pts_next = self._fk.run(planned.q[:, :self.n], tool)[0]
+        corner = pts_prev[-1]
+        vmax = self._vmax(s)
+        limits = JointLimits.from_accel_time(vmax, s.accelTimeJoint)
+        lo, hi = self._soft_limits(s)
+        why = ""
+        for radius in (d, 0.5 * d):  # a blend that bulges out of d at full radius may fit at half of it
+            try:
+                cut, rejoin = cut_points(pts_prev, pts_next, radius)
+                if previous.blend is not None and cut <= previous.blend.rejoin:
+                    cut = previous.blend.rejoin + 1  # leave after the previous corner's blend rejoined
+                    if cut > len(previous.q) - 2:
+                        raise BlendError("the previous motion's own blend reaches this corner")
+                traj = joint_blend(state_at(previous.q, cut, self.dt), state_at(planned.q, rejoin, self.dt),
+                                   limits, self.dt)
+            except BlendError as exc:
+                why = str(exc)
+                continue
+            q = traj.q
+            arm = q[:, :self.n]
+            deviation = float(np.max(np.linalg.norm(self._fk.run(arm, tool)[0] - corner, axis=1)))
+            if deviation > d * (1.0 + 1e-9):
+                why = f"it would leave the path by {deviation * 1e3:.1f} mm"
+                continue
+            if np.any(arm < lo) or np.any(arm > hi):
+                why = "it would leave the joint soft limits"
+                continue
+            try:
+                self._path_box(s, q, _frames(s), "blend")
+            except PlanRefused:
+                why = "it would leave the Cartesian soft limits"
+                continue
+            contact = self.collisions.check(q)
+            if contact is not None:
+                why = contact.describe()
+                continue
+            s_rejoin = float(planned.profile.sample(self.dt).s[rejoin])
+            return Blend(previous.motion, cut, rejoin, s_rejoin, traj, limits, d, deviation)
+        log.info("%s: exact stop at the corner after motion %d, no blend of %.1f mm: %s", planned.op,
+                 previous.motion, d * 1e3, why)
+        return None
 
     # ------------------------------------------------------------------ the IDL motions, by name
 

@@ -14,6 +14,14 @@ effect within ``lead`` plus one cycle of its reply.
   holds at rest). ``resume``: the same path from where it stopped to the same
   end (``PathProfile.resume``). Commands accepted while paused are queued.
 * ``stop``: the same braking, then the whole queue is discarded.
+* Blends (``blend.py``, blend distance > 0): a queued motion may carry a blend
+  of the corner with the motion before it. When that motion runs its nominal
+  profile, it is left at the blend's cut (the motion counts as done there), the
+  blend's joint-space samples follow, then the next motion from the rejoin on,
+  with no stop. A pause or stop in the blend brakes with a joint-space Ruckig
+  stop; a resume from there goes back to the rejoin point at rest and on along
+  the path. A motion paused before its cut ends at rest at its end as usual,
+  and the next one then runs its exact-stop samples.
 * ``abort`` (and the servo going off, raising an alarm, or running dry during a
   motion): nothing more is sent; everything is discarded.
 
@@ -45,8 +53,9 @@ from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.realtime import realtime_thread
 from jara_arm.services.runtime.timing import SAME_HOST, STREAM_BLOCK, STREAM_LEAD, STREAMER_IDLE
 
+from .blend import Blend, JointTrajectory, joint_move, joint_stop
 from .planning import PlanRefused
-from .profile import PathProfile
+from .profile import PathProfile, resume_profile
 from .servo_fifo import FifoEstimate
 from .trajectory import Joints, PlannedMotion
 
@@ -74,29 +83,56 @@ class _Kind(enum.Enum):
 
 @dataclasses.dataclass
 class _Segment:
-    """A profile on a motion's path being sent; sample 0 is the state already commanded."""
+    """A profile on a motion's path being sent, or a joint-space trajectory in its blend (``joint``);
+    sample 0 is the state already commanded."""
 
     motion: PlannedMotion
-    profile: PathProfile
-    q: Joints  # (N, dof) joints at the profile's samples
+    profile: PathProfile  # on the motion's path (not used while ``joint`` is set)
+    q: Joints  # (N, dof) joints at the profile's samples, or ``joint.q``
     kind: _Kind
     k: int = 1  # next sample to send
     resume_after: bool = False  # PAUSE: resume as soon as the braking ends
+    nominal: bool = False  # the motion's own samples (``motion.q``): a blend into the next one may cut it
+    joint: JointTrajectory | None = None  # in ``motion.blend``: the blend, a braking in it, or the way back
+    blend: Blend | None = None  # set with ``joint``
 
     @property
     def last_sent_time(self) -> float:
         """[s] time on ``profile`` of the last sample sent."""
         return (self.k - 1) * self.motion.dt
 
+    @property
+    def duration(self) -> float:
+        """[s] of the whole segment."""
+        return self.joint.duration if self.joint is not None else self.profile.duration
+
     def brake(self, kind: _Kind) -> _Segment:
-        """Braking along the path from the state of the last sample sent."""
+        """Braking along the path (in a blend: in joint space) from the state of the last sample sent."""
+        if self.joint is not None and self.blend is not None:
+            i = self.k - 1
+            stop = joint_stop(self.joint.q[i], self.joint.dq[i], self.joint.ddq[i], self.blend.limits,
+                              self.joint.dt)
+            return _Segment(self.motion, self.profile, stop.q, kind, joint=stop, blend=self.blend)
         profile = self.profile.stop_at(self.last_sent_time)
         return _Segment(self.motion, profile, self.motion.joints_along(profile), kind)
 
     def resumed(self) -> _Segment:
-        """From rest where this segment ended to the end of the path."""
+        """From rest where this segment ended to the end of the path (in a blend: first back to the
+        rejoin point, at rest)."""
+        if self.joint is not None and self.blend is not None:
+            back = joint_move(self.q[-1], self.blend.trajectory.q[-1], self.blend.limits, self.joint.dt)
+            return _Segment(self.motion, self.profile, back.q, _Kind.RUN, joint=back, blend=self.blend)
         profile = self.profile.resume()
         return _Segment(self.motion, profile, self.motion.joints_along(profile), _Kind.RUN)
+
+    def path_after(self) -> _Segment:
+        """After the blend (or the way back onto the path): the motion's path from the rejoin point on."""
+        assert self.joint is not None and self.blend is not None
+        m = self.motion
+        if self.joint is self.blend.trajectory:  # the blend itself: the nominal samples go on
+            return _Segment(m, m.profile, m.q, _Kind.RUN, k=self.blend.rejoin + 1, nominal=True)
+        profile = resume_profile(m.profile.length, self.blend.s_rejoin, m.profile.limits)
+        return _Segment(m, profile, m.joints_along(profile), _Kind.RUN)
 
 
 class Streamer:
@@ -182,12 +218,25 @@ class Streamer:
                 return self._tail.copy(), self._generation  # exactly where we left it
             return target, self._generation
 
+    def last_motion(self) -> PlannedMotion | None:
+        """The motion queued last if it is still queued or running: what a blend would leave."""
+        with self._lock:
+            if self._queue:
+                return self._queue[-1]
+            seg = self._active
+            return seg.motion if seg is not None and seg.kind is _Kind.RUN else None
+
     def submit(self, motion: PlannedMotion, generation: int) -> tuple[int, PlannerProgress] | None:
         """Queue ``motion`` planned from ``start_point()``: its id and the progress it left
-        behind, or None (nothing queued) if the queue's end moved since."""
+        behind, or None (nothing queued) if the queue's end moved since. Its blend is dropped
+        (exact stop) if the motion it leaves is no longer last or already past the cut."""
         with self._lock:
             if generation != self._generation:
                 return None
+            if motion.blend is not None and not self._blendable(motion.blend):
+                log.info("%s: exact stop, motion %d is already past the blend's cut", motion.op,
+                         motion.blend.previous)
+                motion = dataclasses.replace(motion, blend=None)
             self._last_id += 1
             motion = dataclasses.replace(motion, motion=self._last_id)
             self._queue.append(motion)
@@ -195,6 +244,15 @@ class Streamer:
             progress = self._progress(time.time())
         self._wake.set()
         return motion.motion, progress
+
+    def _blendable(self, blend: Blend) -> bool:
+        """Whether ``blend`` can still leave the motion it starts from (lock held)."""
+        if self._queue:
+            return self._queue[-1].motion == blend.previous
+        seg = self._active
+        if seg is None or seg.kind is not _Kind.RUN or seg.motion.motion != blend.previous:
+            return False
+        return seg.joint is not None or (seg.nominal and seg.k <= blend.cut + 1)
 
     def progress(self) -> PlannerProgress:
         """The queue and the pause now."""
@@ -234,9 +292,9 @@ class Streamer:
         self._paused = True
         if seg is not None:
             self._active = seg.brake(_Kind.PAUSE)
-            log.info("pause: motion %d decelerates along its path in %.3f s", seg.motion.motion,
-                     self._active.profile.duration)
-            return f"OK: pausing, decelerating along the path in {self._active.profile.duration:.3f} s"
+            where = "in the blend" if seg.joint is not None else "along the path"
+            log.info("pause: motion %d decelerates %s in %.3f s", seg.motion.motion, where, self._active.duration)
+            return f"OK: pausing, decelerating {where} in {self._active.duration:.3f} s"
         log.info("pause: between motions, %d queued", len(self._queue))
         return "OK: paused"
 
@@ -253,7 +311,7 @@ class Streamer:
             held, self._held = self._held, None
             self._active = held.resumed()
             log.info("resume: motion %d continues, %.3f s to its end", held.motion.motion,
-                     self._active.profile.duration)
+                     self._active.duration)
             return "OK: resumed"
         log.info("resume: %d queued motions go on", len(self._queue))
         return "OK: resumed"
@@ -278,7 +336,7 @@ class Streamer:
         self._tail = seg.q[-1].copy() if seg is not None else self._last_sent
         if discarded:
             self._last_discarded = max(self._last_discarded, max(discarded))
-        duration = seg.profile.duration if seg is not None else 0.0
+        duration = seg.duration if seg is not None else 0.0
         log.info("stop: decelerating in %.3f s; discarded motions %s", duration, discarded or "none")
         return f"OK: stopping in {duration:.3f} s, {len(discarded)} motions discarded"
 
@@ -420,8 +478,17 @@ class Streamer:
                 motion = self._queue.popleft()
                 if self._idle(now) and not self._starts_at_servo(motion):
                     return None
-                self._active = seg = _Segment(motion, motion.profile, motion.q, _Kind.RUN)
+                self._active = seg = _Segment(motion, motion.profile, motion.q, _Kind.RUN, nominal=True)
                 log.debug("motion %d starts (%.3f s)", motion.motion, motion.duration)
+            blend = self._queue[0].blend if seg.nominal and self._queue else None
+            if (blend is not None and seg.kind is _Kind.RUN and blend.previous == seg.motion.motion
+                    and seg.k == blend.cut + 1):  # the cut is sent: the blend into the next motion takes over
+                self._segment_done(seg, max(now, self._busy_until))
+                motion = self._queue.popleft()
+                self._active = _Segment(motion, motion.profile, blend.trajectory.q, _Kind.RUN,
+                                        joint=blend.trajectory, blend=blend)
+                log.debug("motion %d starts in its blend (%.3f s)", motion.motion, blend.trajectory.duration)
+                continue
             if seg.k < len(seg.q):
                 q = seg.q[seg.k]
                 seg.k += 1
@@ -445,13 +512,19 @@ class Streamer:
         """Every sample of ``seg`` has been sent; ``due`` is when the last one is consumed."""
         self._active = None
         if seg.kind is _Kind.RUN:
-            self._inflight.append((seg.motion.motion, due))
+            if seg.joint is not None:  # the blend, or the way back onto the path: the path follows
+                self._active = seg.path_after()
+            else:
+                self._inflight.append((seg.motion.motion, due))
         elif seg.kind is _Kind.PAUSE:
-            if seg.profile.finished_at_end:  # it could only stop at the end: the motion is done
+            if seg.joint is None and seg.profile.finished_at_end:  # it could only stop at the end: the motion is done
                 self._inflight.append((seg.motion.motion, due))
             elif seg.resume_after:
                 self._active = seg.resumed()
             else:
                 self._held = seg
-                log.info("paused: motion %d holds at %.1f %% of its path", seg.motion.motion,
-                         100.0 * seg.profile.s_end / seg.profile.length)
+                if seg.joint is not None:
+                    log.info("paused: motion %d holds in its blend", seg.motion.motion)
+                else:
+                    log.info("paused: motion %d holds at %.1f %% of its path", seg.motion.motion,
+                             100.0 * seg.profile.s_end / seg.profile.length)

@@ -24,6 +24,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from .blend import Blend
 from .paths import JointLine
 from .profile import PathProfile, ProfileLimits, move_profile
 
@@ -96,6 +97,9 @@ class PlannedMotion:
     #: (K, 3) [m] the control point at K of the samples, start to end, in the arm frame: what a
     #: viewer draws (``Planner/path``); empty until the planner fills it in
     preview: NDArray[np.float64] = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
+    #: the blend of the corner with the previous queued motion (``blend.py``); None: exact stop. ``q``
+    #: is always the exact-stop motion, streamed whenever the blend cannot be (e.g. after a pause)
+    blend: Blend | None = None
 
     @property
     def start(self) -> Joints:
@@ -118,9 +122,9 @@ class PlannedMotion:
         # Ruckig trajectories do not pickle: the nominal profile (rest to rest) is rebuilt.
         p = self.profile
         return (_rebuild, (self.motion, self.op, self.path, p.length, p.limits, p.s_start, self.q, self.dt,
-                           self.preview))
+                           self.preview, self.blend))
 
 
 def _rebuild(motion: int, op: str, path: JointMap, length: float, limits: ProfileLimits, s_start: float,
-             q: Joints, dt: float, preview: NDArray[np.float64]) -> PlannedMotion:
-    return PlannedMotion(motion, op, path, move_profile(length, limits, s_start), q, dt, preview)
+             q: Joints, dt: float, preview: NDArray[np.float64], blend: Blend | None = None) -> PlannedMotion:
+    return PlannedMotion(motion, op, path, move_profile(length, limits, s_start), q, dt, preview, blend)

@@ -8,7 +8,7 @@ dry on a loaded machine. In a child process it only competes for a CPU, where
 the streamer's real-time priority wins.
 
 The child is started with ``spawn`` (the parent has Zenoh threads), receives
-``(MotionRequest, start joints)`` on a pipe and sends back the
+``(MotionRequest, start joints, previous motion or None)`` on a pipe and sends back the
 :class:`PlannedMotion` (pickled; its Ruckig profile is rebuilt on arrival) or
 the refusal. It exits when the pipe closes, so it never outlives the service.
 
@@ -57,12 +57,12 @@ def _serve(conn: multiprocessing.connection.Connection, model: RobotModel, log_l
     conn.send(("ready",))
     while True:
         try:
-            req, start = conn.recv()
+            req, start, previous = conn.recv()
         except (EOFError, OSError):
             return
         motion = None
         try:
-            motion = planner.plan(req, start, preview=False)
+            motion = planner.plan(req, start, previous, preview=False)
             answer: tuple = ("ok", motion)
         except PlanRefused as exc:
             answer = ("refused", int(exc.code), exc.comment)
@@ -103,13 +103,13 @@ class PlanningProcess:
             raise RuntimeError(f"the planning process did not start within {_START_TIMEOUT:.0f} s")
         self._conn.recv()
 
-    def plan(self, req: MotionRequest, start: Joints) -> PlannedMotion:
-        """The planned motion, its ``preview`` empty (:meth:`preview` has it); raises PlanRefused (also if the
-        child died: it is restarted)."""
+    def plan(self, req: MotionRequest, start: Joints, previous: PlannedMotion | None = None) -> PlannedMotion:
+        """The planned motion (``previous``: ``MotionPlanner.plan``'s), its ``preview`` empty (:meth:`preview`
+        has it); raises PlanRefused (also if the child died: it is restarted)."""
         with self._lock:
             try:
                 self._take_preview()  # a preview nobody asked for (the motion was not queued)
-                self._conn.send((req, start))
+                self._conn.send((req, start, previous))
                 answer = self._conn.recv()
                 self._preview_pending = answer[0] == "ok"
             except (EOFError, OSError, BrokenPipeError):

@@ -1,0 +1,406 @@
+"""Blending (issue 15, part 3): ``services/planner/blend.py`` through ``MotionPlanner`` and ``Streamer``,
+switched on by ``Ext/setBlendDistance`` (``services/command/ext.py``).
+
+In-process: the blend distance setting (its checks, the snapshot every motion carries, the Ext handler's
+replies); the planner's blend of two LINs at a right angle, its fallbacks, and the streamer running
+through it with pause / resume / stop. Live (``test_live_*``, the whole system from ``jara-arm up``):
+three LINs around square corners queued back to back with d = 20 mm and with d = 0, and a pause and a
+stop in the middle of a blend.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import msgpack
+import numpy as np
+import pytest
+
+from jara_arm.robots import Obstacle, robot
+from jara_arm.schema import codec
+from jara_arm.schema import wire_types as w
+from jara_arm.schema.codec import Encoding
+from jara_arm.schema.codes import ReturnCode, StateBit
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.operations import EXT, MAX_BLEND_DISTANCE, OP
+from jara_arm.schema.planner import ControlAction, MotionRequest, MotionSettings
+from jara_arm.schema.types import CartesianSpeed, LimitValue
+from jara_arm.services.command.ext import CommandExt
+from jara_arm.services.command.middle import CommandMiddle
+from jara_arm.services.command.settings import Settings
+from jara_arm.services.planner.planning import MotionPlanner
+from jara_arm.services.planner.streamer import Streamer
+from jara_arm.services.planner.trajectory import PlannedMotion
+from jara_arm.services.runtime.rpc import answer
+
+from .support import wait_until
+from .test_middle import HOLD_WINDOW, TOL_PATH, line_deviation, rel
+from .test_middle import Arm as MiddleArm
+
+pytestmark = pytest.mark.timeout(180)
+IIWA = robot("iiwa")
+DT = IIWA.cmd_cycle
+D = 0.02  # [m] the blend distance of most tests
+
+
+# ---------------------------------------------------------------------------------------------- the setting
+
+
+def _defaults() -> Settings:
+    return Settings.defaults(IIWA, reach=1.0)
+
+
+def test_the_blend_distance_starts_at_zero_and_every_snapshot_carries_it():
+    s = _defaults()
+    assert s.blend_distance == 0.0 and s.snapshot(IIWA.hard_limits).blendDistance == 0.0  # exact stop
+    blended = s.with_blend_distance(0.02)
+    assert blended.snapshot(IIWA.hard_limits).blendDistance == 0.02
+    assert s.blend_distance == 0.0  # a frozen value: the old one is unchanged
+    # the other setters keep it, and it keeps them
+    assert blended.with_speed_joint(30).snapshot(IIWA.hard_limits).blendDistance == 0.02
+    assert blended.with_speed_joint(30).with_blend_distance(0.0).spd_ratio_joint == 30
+    assert s.with_blend_distance(MAX_BLEND_DISTANCE).blend_distance == MAX_BLEND_DISTANCE  # the bound itself
+
+
+@pytest.mark.parametrize("bad", [-1e-6, -0.02, math.nan, math.inf, -math.inf, MAX_BLEND_DISTANCE + 1e-6, 1.0])
+def test_a_bad_blend_distance_names_the_field_and_changes_nothing(bad: float):
+    s = _defaults().with_blend_distance(0.005)
+    with pytest.raises(WireError) as err:
+        s.with_blend_distance(bad)
+    assert err.value.field == "distance"
+    assert "m" in err.value.reason and s.blend_distance == 0.005
+
+
+def _ext() -> tuple[CommandExt, CommandMiddle, list[Settings]]:
+    heard: list[Settings] = []
+    # the setters touch only the settings: no core, feedback or kinematics needed
+    middle = CommandMiddle(None, _defaults(), None, None, heard.append)  # type: ignore[arg-type]
+    return CommandExt(middle), middle, heard
+
+
+def _call(ext: CommandExt, name: str, args: dict) -> tuple[int, str, dict]:
+    """What a client gets from ``Ext/<name>``: decoded as the RPC layer does, MessagePack."""
+    reply = answer(EXT[name], msgpack.packb(args), Encoding.MSGPACK, ext, name)
+    return int(reply.id), reply.comment, dict(reply.outs) if reply.ok else {}
+
+
+def test_the_ext_operations_set_and_get_it_with_the_reply_rules():
+    ext, middle, heard = _ext()
+    assert _call(ext, OP.getBlendDistance, {}) == (ReturnCode.OK, "OK", {"distance": 0.0})
+    assert _call(ext, OP.setBlendDistance, {"distance": 0.02})[0] == ReturnCode.OK
+    assert _call(ext, OP.getBlendDistance, {})[2] == {"distance": 0.02}
+    assert middle.settings.snapshot(IIWA.hard_limits).blendDistance == 0.02 and heard[-1].blend_distance == 0.02
+    for bad in (-0.001, math.nan, 0.5):
+        code, comment, _ = _call(ext, OP.setBlendDistance, {"distance": bad})
+        assert code == ReturnCode.VALUE_ERR and comment.startswith("distance: "), comment
+    code, comment, _ = _call(ext, OP.setBlendDistance, {"distance": "far"})
+    assert code == ReturnCode.VALUE_ERR and "distance" in comment, comment
+    assert _call(ext, OP.getBlendDistance, {})[2] == {"distance": 0.02} and len(heard) == 1  # unchanged
+    # a Middle setter after it keeps it: both change the one settings value
+    middle.setSpeedJoint(40)
+    assert middle.settings.blend_distance == 0.02 and middle.settings.spd_ratio_joint == 40
+
+
+# ---------------------------------------------------------------------------------------------- the planner
+
+
+def _settings(d: float) -> MotionSettings:
+    m = IIWA
+    return MotionSettings(
+        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=m.rated_speed,
+        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=m.min_accel_time,
+        accelTimeCartesian=m.min_accel_time_cartesian, softLimitJoint=m.hard_limits,
+        softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
+        controlPointOffset=np.eye(4)[:3], home=m.ready_pose, blendDistance=d)
+
+
+def _lin(planner: MotionPlanner, dx: float, dy: float, start: np.ndarray, previous: PlannedMotion | None,
+         d: float) -> PlannedMotion:
+    car = {"carPos": [[1.0, 0.0, 0.0, dx], [0.0, 1.0, 0.0, dy], [0.0, 0.0, 1.0, 0.0]], "elbow": 0.0,
+           "structFlag": 0}
+    return planner.plan(MotionRequest(OP.moveLinearCartesianRel, {"carPoint": car}, _settings(d)), start, previous)
+
+
+def _corner(planner: MotionPlanner, d: float, leg: float = 0.15) -> tuple[PlannedMotion, PlannedMotion]:
+    """+x by ``leg``, then +y by ``leg`` from the ready pose: the second one planned with the first queued."""
+    first = dataclasses.replace(_lin(planner, leg, 0.0, np.array(IIWA.ready_pose), None, d), motion=1)
+    return first, _lin(planner, 0.0, leg, first.end, first, d)
+
+
+@pytest.fixture(scope="module")
+def planner() -> MotionPlanner:
+    return MotionPlanner(IIWA)
+
+
+@pytest.fixture(scope="module")
+def corner(planner: MotionPlanner) -> tuple[PlannedMotion, PlannedMotion]:
+    return _corner(planner, D)
+
+
+def _blended(first: PlannedMotion, second: PlannedMotion) -> np.ndarray:
+    b = second.blend
+    assert b is not None
+    return np.vstack([first.q[:b.cut + 1], b.trajectory.q[1:], second.q[b.rejoin + 1:]])
+
+
+def _distance_to_polyline(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(N,) [m] each point's distance to the polyline through ``corners`` (K, 3)."""
+    best = np.full(len(points), np.inf)
+    for a, b in zip(corners[:-1], corners[1:]):
+        ab = b - a
+        t = np.clip((points - a) @ ab / (ab @ ab), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(points - (a + t[:, None] * ab), axis=1))
+    return best
+
+
+def test_right_angle_blend_is_smooth_never_stops_and_keeps_within_d(planner, corner):
+    first, second = corner
+    b = second.blend
+    assert b is not None and b.previous == 1 and b.distance == D
+    q = _blended(first, second)
+    v = np.diff(q, axis=0) / DT
+    a = np.diff(v, axis=0) / DT
+    lim = b.limits
+    i0, i1 = b.cut, b.cut + len(b.trajectory.q) - 1  # rows of q: the blend's first and last
+    # continuous position, velocity and acceleration: no step larger than the jerk limit allows
+    assert np.all(np.abs(np.diff(a, axis=0))[i0 - 3:i1 + 2] <= lim.jerk * DT * 1.01)
+    # within every axis' velocity and acceleration limits through the blend
+    assert np.all(np.abs(v[i0 - 1:i1 + 1]) <= lim.velocity * (1 + 1e-9))
+    assert np.all(np.abs(a[i0 - 1:i1]) <= lim.acceleration * 1.01)
+    pts = planner._fk.run(q, None)[0]  # the control point (no tool) at every sample
+    speed = np.linalg.norm(np.diff(pts, axis=0), axis=1) / DT
+    assert speed[i0 - 1:i1 + 1].min() > 0.05  # [m/s] it never stops at the corner
+    c = planner._fk.run(first.end[None], None)[0][0]  # the corner
+    dev = _distance_to_polyline(pts, np.array([pts[0], c, pts[-1]]))
+    assert dev.max() <= D + 1e-6
+    assert np.linalg.norm(pts[i0:i1 + 1] - c, axis=1).max() <= D + 1e-6  # within d of the corner itself
+    assert dev[i0:i1].max() > 1e-3  # it really cuts the corner
+    # and it saves time over the exact stop
+    assert len(q) < len(first.q) + len(second.q) - 1 - 100
+
+
+def test_zero_distance_is_todays_exact_stop(planner, corner):
+    first, _ = corner
+    exact = _lin(planner, 0.0, 0.15, first.end, None, 0.0)
+    with_previous = _lin(planner, 0.0, 0.15, first.end, first, 0.0)
+    assert exact.blend is None and with_previous.blend is None
+    np.testing.assert_array_equal(exact.q, with_previous.q)
+    blended = _corner(planner, D)[1]
+    np.testing.assert_array_equal(exact.q, blended.q)  # the blend rides along, the exact motion is the same
+
+
+def test_a_colliding_blend_falls_back_to_exact_stop():
+    """A box beside the first leg, 80 mm before the corner: the second motion is clear of it, the blend
+    (leaving the first leg up to 100 mm before the corner) is not: exact stop, and the motion is accepted."""
+    free = MotionPlanner(IIWA)
+    first = dataclasses.replace(_lin(free, 0.2, 0.0, np.array(IIWA.ready_pose), None, 0.1), motion=1)
+    corner = free.kin.fk(first.end[:IIWA.axis_num]).translation
+    boxed = MotionPlanner(IIWA, obstacles=(Obstacle(tuple(corner + (-0.08, -0.055, 0.0)), (0.01, 0.01, 0.01)),))
+    assert _lin(free, 0.0, 0.2, first.end, first, 0.1).blend is not None  # without the box: blended
+    second = _lin(boxed, 0.0, 0.2, first.end, first, 0.1)
+    assert second.blend is None
+    np.testing.assert_array_equal(second.q, _lin(free, 0.0, 0.2, first.end, None, 0.0).q)
+
+
+# ---------------------------------------------------------------------------------------------- streamer
+
+
+def _streamer(first: PlannedMotion, second: PlannedMotion) -> Streamer:
+    st = Streamer(IIWA.dof, DT, lambda _b: None, lambda _p: None, lambda: None)
+    assert st.submit(dataclasses.replace(first, motion=0), 0) is not None
+    assert st.last_motion() is not None and st.last_motion().motion == 1
+    assert st.submit(second, 0) is not None
+    return st
+
+
+def _send(st: Streamer, count: int | None = None) -> list[np.ndarray]:
+    out: list[np.ndarray] = []
+    while count is None or len(out) < count:
+        q = st._next_sample(0.0)
+        if q is None:
+            break
+        out.append(q.copy())
+    return out
+
+
+def _smooth(q: np.ndarray, accel: np.ndarray) -> None:
+    """No velocity step larger than a few periods of the acceleration limit (continuity through joins)."""
+    v = np.diff(q, axis=0) / DT
+    assert np.all(np.abs(np.diff(v, axis=0)) <= accel * DT * 2.0)
+
+
+def test_streamer_runs_the_blend_without_a_stop(corner):
+    first, second = corner
+    st = _streamer(first, second)
+    sent = np.array(_send(st))
+    np.testing.assert_array_equal(sent, _blended(first, second)[1:])
+    assert st.progress().queued == (1, 2)  # both sent: in flight until the servo has consumed them
+
+
+@pytest.mark.parametrize("action", [ControlAction.PAUSE, ControlAction.STOP])
+def test_pause_and_stop_in_the_blend_brake_to_rest(corner, action):
+    first, second = corner
+    b = second.blend
+    assert b is not None
+    st = _streamer(first, second)
+    sent = _send(st, b.cut + len(b.trajectory.q) // 2)  # into the middle of the blend
+    code, comment, _ = st.control(action)
+    assert "blend" in comment or action is ControlAction.STOP, comment
+    sent += _send(st)
+    q = np.vstack([first.q[:1], sent])
+    _smooth(q, b.limits.acceleration)
+    np.testing.assert_allclose(q[-1], q[-2], atol=1e-6)  # at rest (a jerk-limited last step: j·dt³/6)
+    if action is ControlAction.STOP:
+        progress = st.progress()
+        assert progress.lastDiscarded == 2 and 2 not in progress.queued and _send(st) == []
+        return
+    assert st.progress().paused
+    st.control(ControlAction.RESUME)
+    rest = _send(st)
+    q = np.vstack([q, rest])
+    np.testing.assert_allclose(q[-1], second.end, atol=1e-12)  # back on the path, to its end
+    _smooth(q, np.maximum(b.limits.acceleration, np.abs(np.diff(second.q, 2, axis=0)).max(axis=0) / DT**2))
+
+
+def test_a_pause_before_the_cut_gives_the_exact_stop(corner):
+    first, second = corner
+    b = second.blend
+    assert b is not None
+    st = _streamer(first, second)
+    _send(st, b.cut - 50)
+    st.control(ControlAction.PAUSE)
+    _send(st)
+    st.control(ControlAction.RESUME)
+    rest = np.array(_send(st))
+    n = len(second.q) - 1
+    np.testing.assert_array_equal(rest[-n:], second.q[1:])  # the exact-stop motion from the corner
+
+
+# ---------------------------------------------------------------------------------------------- live
+
+LEG = 0.12  # [m] each side of the square
+#: the three LINs: +x, +y, -x (robot frame), two right-angle corners between them
+LEGS = (np.array([LEG, 0.0, 0.0]), np.array([0.0, LEG, 0.0]), np.array([-LEG, 0.0, 0.0]))
+V_THROUGH = 0.02  # [m/s] the flange's speed stays above this within d of a blended corner
+V_REST = 1e-3  # [m/s] at an exact stop it falls below this
+TOL_BLEND = 1e-3  # [m] what feedback may add to d (issue 15: within d of the corner)
+
+
+class Arm(MiddleArm):
+    """``test_middle.Arm`` with the blend distance reset to 0 and the feedback's servo times kept."""
+
+    def ext(self, name, args=None):
+        return self.client.ext(name, args)
+
+    def reset(self) -> None:
+        self.ok(self.ext(OP.setBlendDistance, {"distance": 0.0}))
+        super().reset()
+
+    def recorded_timed(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(t [s], joints)`` of every feedback sample since ``record()``."""
+        msgs = [codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()) for s in iter(self.fb.try_recv, None)]
+        return np.array([m.tm.to_seconds() for m in msgs]), np.array([m.pos for m in msgs])
+
+    def square(self, d: float) -> np.ndarray:
+        """With blend distance ``d`` [m], the three LINs queued back to back; the polyline's corners (4, 3)."""
+        self.ok(self.ext(OP.setBlendDistance, {"distance": d}))
+        assert self.ext(OP.getBlendDistance)["distance"] == d
+        p0 = self.pose()[:, 3]
+        self.record()
+        for leg in LEGS:
+            self.ok(self.middle(OP.moveLinearCartesianRel, {"carPoint": rel(*leg)}))
+        return np.array([p0, *(p0 + np.cumsum(LEGS, axis=0))])
+
+    def flange_now(self) -> np.ndarray:
+        """[m] the flange at the newest feedback sample."""
+        return self.points(self.servo_time.sample()[1][None])[0]
+
+    def when_within(self, corner: np.ndarray, radius: float) -> None:
+        """Until the flange is within ``radius`` [m] of ``corner``."""
+        wait_until(lambda: np.linalg.norm(self.flange_now() - corner) < radius, 10.0, 0.0,
+                   f"the flange within {radius * 1e3:.0f} mm of the corner")
+
+
+@pytest.fixture(scope="module", params=["iiwa", "panda"])
+def robot_name(request: pytest.FixtureRequest) -> str:
+    """The robots of ``live`` and ``arm`` (conftest.py): one system each, with this module's ``Arm``."""
+    return str(request.param)
+
+
+def _flange_speed(arm: Arm) -> tuple[np.ndarray, np.ndarray]:
+    """Flange positions [m] of the recorded feedback, and the speed [m/s] between each two of them."""
+    t, q = arm.recorded_timed()
+    pts = arm.points(q)
+    dt = np.diff(t)
+    assert np.all(dt > 0.0), "feedback samples out of order or repeated"
+    return pts, np.linalg.norm(np.diff(pts, axis=0), axis=1) / dt
+
+
+def test_live_blended_square_never_stops_at_its_corners_and_stays_within_d(arm: Arm):
+    d = 0.02
+    corners = arm.square(d)
+    arm.idle()
+    pts, speed = _flange_speed(arm)
+    assert np.linalg.norm(pts[-1] - corners[-1]) < TOL_PATH  # at the end
+    dev = _distance_to_polyline(pts, corners)
+    assert dev.max() <= d + TOL_BLEND, f"{dev.max() * 1e3:.2f} mm off the commanded polyline"
+    for c in corners[1:3]:
+        near = np.linalg.norm(pts[:-1] - c, axis=1) <= d  # the speed from each sample to the next
+        assert near.any(), "the flange never came within d of the corner"
+        assert speed[near].min() > V_THROUGH, f"{speed[near].min():.4f} m/s at the corner: it stopped"
+        closest = np.linalg.norm(pts - c, axis=1).min()
+        assert 1e-3 < closest <= d + TOL_BLEND, f"closest to the corner {closest * 1e3:.2f} mm: not cut"
+
+
+def test_live_zero_distance_stops_at_each_corner(arm: Arm):
+    corners = arm.square(0.0)
+    arm.idle()
+    pts, speed = _flange_speed(arm)
+    assert np.linalg.norm(pts[-1] - corners[-1]) < TOL_PATH
+    assert _distance_to_polyline(pts, corners).max() < TOL_PATH  # on the commanded lines
+    for c in corners[1:3]:
+        near = np.linalg.norm(pts[:-1] - c, axis=1) <= 2e-3
+        assert near.any() and speed[near].min() < V_REST, f"{speed[near].min():.4f} m/s: no stop at the corner"
+
+
+def test_live_pause_in_a_blend_holds_and_resume_reaches_the_end(arm: Arm):
+    d = 0.02
+    corners = arm.square(d)
+    arm.when_within(corners[1], 0.6 * d)  # past the cut (d before the corner), in the blend
+    reply = arm.middle(OP.pause)
+    arm.ok(reply)
+    assert "blend" in reply.comment, reply.comment  # the streamer braked in the blend, not on a path
+    wait_until(lambda: arm.common(OP.getState)["state"] & StateBit.PAUSED, 2.0, what="paused bit")
+    arm.servo_time.settled()  # braked to rest
+    held = arm.flange_now()
+    arm.servo_time.passes(HOLD_WINDOW)
+    assert np.linalg.norm(arm.flange_now() - held) < 1e-5  # holds while paused
+    assert np.linalg.norm(held - corners[1]) < 2 * d  # near the corner it was blending
+    arm.ok(arm.middle(OP.resume))
+    arm.idle()
+    state = arm.common(OP.getState)["state"]
+    assert not state & (StateBit.PAUSED | StateBit.MOVING | StateBit.ALARM)
+    assert np.linalg.norm(arm.pose()[:, 3] - corners[-1]) < TOL_PATH  # the queue ran on to its end
+
+
+def test_live_stop_in_a_blend_ends_at_rest_and_the_queue_works_after(arm: Arm):
+    d = 0.02
+    corners = arm.square(d)
+    arm.when_within(corners[1], 0.6 * d)
+    arm.ok(arm.middle(OP.stop))
+    arm.idle()
+    arm.servo_time.settled()  # at rest, not creeping
+    rest = arm.flange_now()
+    arm.servo_time.passes(HOLD_WINDOW)  # a motion the stop failed to discard would move the arm in it
+    assert np.linalg.norm(arm.flange_now() - rest) < 1e-5
+    state = arm.common(OP.getState)["state"]
+    assert not state & (StateBit.MOVING | StateBit.PAUSED | StateBit.ALARM | StateBit.BUFFER_FULL)
+    assert np.linalg.norm(rest - corners[1]) < 2 * d  # stopped by the corner, not on along the queue
+    assert np.linalg.norm(rest - corners[3]) > LEG / 2
+    # a motion after the stop runs from where the arm rests
+    arm.record()
+    arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(0.0, 0.0, 0.03)}))
+    arm.idle()
+    assert np.linalg.norm(arm.pose()[:, 3] - (rest + [0.0, 0.0, 0.03])) < TOL_PATH
+    assert line_deviation(arm.points(arm.recorded()), rest, rest + [0.0, 0.0, 0.03]) < TOL_PATH
