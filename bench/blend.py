@@ -22,6 +22,7 @@ speed within d of a blended corner [m/s] (above 0: it never stopped there).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from dataclasses import dataclass
@@ -151,16 +152,26 @@ class Bench:
         cycle = float(t[resting[-1] + 1] - t[moving[0] - 1])
         pts = np.array([self.kin.fk(qi).translation for qi in arm])
         dt = np.diff(t)
-        speed = np.linalg.norm(np.diff(pts, axis=0), axis=1) / np.where(dt > 0, dt, np.inf)
+        speed = np.linalg.norm(np.diff(pts, axis=0), axis=1) / np.where(dt > 0, dt, np.nan)  # a repeated tm: no speed
+        # The cycle starts and ends at rest at A_UP, itself a blended corner mid-cycle: only the run counts.
+        running = np.zeros(len(speed), dtype=bool)
+        running[moving[0]:resting[-1]] = True
         largest, slowest = 0.0, float("inf")
         for before in CYCLE[:-1]:  # the corner after each motion but the last
             if before.stop or d == 0.0:
                 continue
             gap = np.linalg.norm(pts - self.point(before.target), axis=1)
-            largest = max(largest, float(gap.min()))
-            near = gap[:-1] <= d
-            if near.any():
-                slowest = min(slowest, float(speed[near].min()))
+            near = np.flatnonzero((gap[:-1] <= d) & running & np.isfinite(speed))
+            # Each passage within d of the corner apart; A_UP is also where the cycle leaves and ends at
+            # rest (exact stops, not this corner's blend): passages touching the cycle's ends do not count.
+            for passage in np.split(near, np.flatnonzero(np.diff(near) > 1) + 1):
+                if not passage.size or passage[0] <= moving[0] or passage[-1] >= resting[-1] - 1:
+                    continue
+                closest, low = float(gap[passage].min()), float(speed[passage].min())
+                largest, slowest = max(largest, closest), min(slowest, low)
+                if os.environ.get("BLEND_CORNERS"):
+                    print(f"d {d * 1e3:.0f} mm, corner {before.target}: closest {closest * 1e3:.2f} mm, "
+                          f"slowest {low:.4f} m/s over {passage.size} samples", file=sys.stderr)
         return Run(cycle, largest, slowest)
 
 
