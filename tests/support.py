@@ -7,6 +7,7 @@ multicast scouting off, on ports of its own, so that tests can run side by side.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import re
 import signal
@@ -22,11 +23,13 @@ import numpy as np
 import zenoh
 
 from jara_arm.launcher.client import ArmClient
+from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding
 from jara_arm.schema.keys import ArmKeys, Service
-from jara_arm.schema.types import CarPosWithElbow
+from jara_arm.schema.planner import MotionSettings
+from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 
@@ -247,3 +250,15 @@ def wait_recording(recorder: Proc, timeout: float = 30.0) -> None:
     written = re.compile(r", [1-9][0-9]* messages, ")
     wait_until(lambda: any(written.search(line) for line in recorder.lines), timeout,
                what=f"jara-arm record writing messages; its output: {recorder.lines[-5:]}")
+
+
+def motion_settings(model: RobotModel, **changes: Any) -> MotionSettings:
+    """The settings a motion is planned with, as the command service's defaults would have them (speed
+    ratios 50 % joint, 100 % Cartesian; no offsets; wide Cartesian limits), with ``changes``."""
+    s = MotionSettings(
+        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=model.rated_speed,
+        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=model.min_accel_time,
+        accelTimeCartesian=model.min_accel_time_cartesian, softLimitJoint=model.hard_limits,
+        softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
+        controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
+    return dataclasses.replace(s, **changes)

@@ -31,6 +31,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from jara_arm.kinematics import Kinematics
 from jara_arm.robots import robot
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
@@ -43,7 +44,6 @@ from jara_arm.schema.planner import MOTION_SETTINGS
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
 from jara_arm.services.runtime.timing import SAME_HOST
 from jara_arm.services.runtime.wire import Publication, decode_sample
-from jara_arm.kinematics import Kinematics
 from jara_arm.services.servo.control import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
 from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
@@ -601,7 +601,7 @@ def kill_mid_motion(arm: System, service: Service, code: AlarmCode) -> float:
     latency(f"{service.value} SIGKILL", cause, t)
     assert event.alarm.type is AlarmType.FAULT and service.value in event.alarm.description
     check_fault_without(arm, service, code)
-    arm.proc.wait_for_line(f"died with SIGKILL; restarting", timeout=5, start=mark)
+    arm.proc.wait_for_line("died with SIGKILL; restarting", timeout=5, start=mark)
     arm.proc.wait_for_line(f"arm0/{service.value}: {service.value} up", timeout=20, start=mark)
     wait_alive(arm.session, "arm0", [service], timeout=10)
     check_alarm(arm, code, AlarmType.FAULT, servo_on=False)  # both interfaces agree again
@@ -864,8 +864,7 @@ def test_timing_profiles_and_their_arguments():
 
 
 def test_newer_alarm_lists():
-    from jara_arm.schema.alarms import AlarmList
-    from jara_arm.schema.alarms import is_newer
+    from jara_arm.schema.alarms import AlarmList, is_newer
 
     a = AlarmList(Time(100, 0), Time(50, 0), ())
     later = AlarmList(Time(100, 1), Time(50, 0), ())

@@ -24,8 +24,7 @@ from jara_arm.schema.codec import Encoding
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.operations import EXT, MAX_BLEND_DISTANCE, OP
-from jara_arm.schema.planner import ControlAction, MotionRequest, MotionSettings
-from jara_arm.schema.types import CartesianSpeed, LimitValue
+from jara_arm.schema.planner import ControlAction, MotionRequest
 from jara_arm.services.command.ext import CommandExt
 from jara_arm.services.command.middle import CommandMiddle
 from jara_arm.services.command.settings import Settings
@@ -34,7 +33,7 @@ from jara_arm.services.planner.streamer import Streamer
 from jara_arm.services.planner.trajectory import PlannedMotion
 from jara_arm.services.runtime.rpc import answer
 
-from .support import wait_until
+from .support import motion_settings, wait_until
 from .test_middle import HOLD_WINDOW, TOL_PATH, line_deviation, rel
 from .test_middle import Arm as MiddleArm
 
@@ -105,21 +104,14 @@ def test_the_ext_operations_set_and_get_it_with_the_reply_rules():
 # ---------------------------------------------------------------------------------------------- the planner
 
 
-def _settings(d: float) -> MotionSettings:
-    m = IIWA
-    return MotionSettings(
-        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=m.rated_speed,
-        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=m.min_accel_time,
-        accelTimeCartesian=m.min_accel_time_cartesian, softLimitJoint=m.hard_limits,
-        softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
-        controlPointOffset=np.eye(4)[:3], home=m.ready_pose, blendDistance=d)
 
 
 def _lin(planner: MotionPlanner, dx: float, dy: float, start: np.ndarray, previous: PlannedMotion | None,
          d: float) -> PlannedMotion:
     car = {"carPos": [[1.0, 0.0, 0.0, dx], [0.0, 1.0, 0.0, dy], [0.0, 0.0, 1.0, 0.0]], "elbow": 0.0,
            "structFlag": 0}
-    return planner.plan(MotionRequest(OP.moveLinearCartesianRel, {"carPoint": car}, _settings(d)), start, previous)
+    request = MotionRequest(OP.moveLinearCartesianRel, {"carPoint": car}, motion_settings(IIWA, blendDistance=d))
+    return planner.plan(request, start, previous)
 
 
 def _corner(planner: MotionPlanner, d: float, leg: float = 0.15) -> tuple[PlannedMotion, PlannedMotion]:

@@ -16,12 +16,11 @@ from jara_arm.launcher.client import ArmClient
 from jara_arm.robots import ROBOTS, Obstacle, RobotModel, robot
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionRequest, MotionSettings
-from jara_arm.schema.types import CartesianSpeed, LimitValue
+from jara_arm.schema.planner import MotionRequest
 from jara_arm.services.planner.collision import PathChecker
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 
-from .support import ServoTime, client_session, launched
+from .support import ServoTime, client_session, launched, motion_settings
 
 IIWA = robot("iiwa")
 READY = np.array(IIWA.ready_pose)
@@ -29,13 +28,6 @@ READY = np.array(IIWA.ready_pose)
 FOLDED = (0.0, 2.0, 0.0, -2.0, 0.0, 0.0, 0.0)
 
 
-def _settings(model: RobotModel) -> MotionSettings:
-    return MotionSettings(
-        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=model.rated_speed,
-        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=model.min_accel_time,
-        accelTimeCartesian=model.min_accel_time_cartesian, softLimitJoint=model.hard_limits,
-        softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
-        controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
 
 
 def _start(model: RobotModel) -> np.ndarray:
@@ -50,7 +42,7 @@ def _box_ahead() -> Obstacle:
 
 
 def _ptp(planner: MotionPlanner, target: tuple[float, ...]):
-    return planner.plan(MotionRequest(OP.movePTPJointAbs, {"jointPoints": target}, _settings(planner.model)),
+    return planner.plan(MotionRequest(OP.movePTPJointAbs, {"jointPoints": target}, motion_settings(planner.model)),
                         _start(planner.model))
 
 
@@ -87,7 +79,7 @@ def test_a_lin_into_a_box_is_refused():
     T = planner.kin.fk(READY)
     target = np.hstack([T.rotation, (T.translation + [0.0, 0.3, 0.0])[:, None]])
     req = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": {"carPos": target.tolist(), "elbow": 0.0,
-                                                                 "structFlag": 0}}, _settings(IIWA))
+                                                                 "structFlag": 0}}, motion_settings(IIWA))
     with pytest.raises(PlanRefused) as refused:
         planner.plan(req, _start(IIWA))
     assert refused.value.code is ReturnCode.VALUE_ERR and "obstacle 1" in refused.value.comment

@@ -10,8 +10,17 @@ import pytest
 from jara_arm.robots import robot
 from jara_arm.schema.codes import AlarmCode, AlarmType
 from jara_arm.schema.types import LimitValue
-from jara_arm.services.servo.control import (BRAKE_JERK_TIME, LIMIT_STOP_ACCEL, OVERSPEED_MARGIN, RAN_DRY,
-                                             RELAX_TIME, RESUME_TOLERANCE, STOPPED, ControlLaw, Refusal)
+from jara_arm.services.servo.control import (
+    BRAKE_JERK_TIME,
+    LIMIT_STOP_ACCEL,
+    OVERSPEED_MARGIN,
+    RAN_DRY,
+    RELAX_TIME,
+    RESUME_TOLERANCE,
+    STOPPED,
+    ControlLaw,
+    Refusal,
+)
 
 IIWA = robot("iiwa")
 PANDA = robot("panda")

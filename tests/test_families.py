@@ -19,6 +19,7 @@ import pinocchio as pin
 import pytest
 import zenoh
 
+from jara_arm.kinematics import Kinematics
 from jara_arm.launcher.client import ArmClient
 from jara_arm.robots import robot
 from jara_arm.schema import codec
@@ -26,7 +27,6 @@ from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, hg_matrix
-from jara_arm.kinematics import Kinematics
 
 from .support import ServoTime
 

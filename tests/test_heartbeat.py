@@ -20,7 +20,6 @@ from jara_arm.services.runtime.timing import Health
 
 from .support import endpoint, free_port, wait_until
 
-
 #: Beats every 5 ms, so that these tests see many in little time.
 FAST = Health("test", heartbeat_period=0.005, stall_after=0.05, hung_after=1.0, first_beat_grace=1.0)
 #: [s] after close(): an observation window of ten heartbeat periods in which no beat may come.

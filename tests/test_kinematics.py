@@ -9,8 +9,6 @@ import pinocchio as pin
 import pybullet as pb
 import pytest
 
-from jara_arm.robots import ROBOTS, Family
-from jara_arm.schema.errors import JaraArmError
 from jara_arm.kinematics import (
     FULL_MASK,
     POSITION_MASK,
@@ -25,6 +23,8 @@ from jara_arm.kinematics import (
     robot_to_arm,
     se3_to_hg,
 )
+from jara_arm.robots import ROBOTS, Family
+from jara_arm.schema.errors import JaraArmError
 
 ARMS7 = ("iiwa", "panda")
 

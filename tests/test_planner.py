@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from jara_arm.kinematics import Kinematics, as_se3
 from jara_arm.robots import RobotModel, robot
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
@@ -38,13 +39,24 @@ from jara_arm.schema.planner import (
     PlannerProgress,
     PlanReply,
 )
-from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
-from jara_arm.kinematics import Kinematics, as_se3
+from jara_arm.schema.types import CarPosWithElbow, LimitValue
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 from jara_arm.services.planner.servo_fifo import FifoEstimate
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import Client, Proc, ServoTime, car, endpoint, free_port, pose, service_argv, wait_alive, wait_until
+from .support import (
+    Client,
+    Proc,
+    ServoTime,
+    car,
+    endpoint,
+    free_port,
+    motion_settings,
+    pose,
+    service_argv,
+    wait_alive,
+    wait_until,
+)
 
 pytestmark = pytest.mark.timeout(120)
 DT = 1e-3
@@ -119,14 +131,7 @@ class Rig:
 
     # -- calls ------------------------------------------------------------------------
     def settings(self, **changes: Any) -> MotionSettings:
-        m = self.model
-        s = MotionSettings(
-            spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=m.rated_speed,
-            maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=m.min_accel_time,
-            accelTimeCartesian=m.min_accel_time_cartesian, softLimitJoint=m.hard_limits,
-            softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
-            controlPointOffset=np.eye(4)[:3], home=m.ready_pose)
-        return dataclasses.replace(s, **changes)
+        return motion_settings(self.model, **changes)
 
     def plan(self, op: str, args: dict | None = None, **settings: Any) -> Answer:
         req = MotionRequest(op, args or {}, self.settings(**settings))
@@ -589,14 +594,6 @@ class TestPanda:
 # ----------------------------------------------------------------------------- in-process planning
 
 
-def _settings(model: RobotModel, **changes: Any) -> MotionSettings:
-    s = MotionSettings(
-        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=model.rated_speed,
-        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=model.min_accel_time,
-        accelTimeCartesian=model.min_accel_time_cartesian, softLimitJoint=model.hard_limits,
-        softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
-        controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
-    return dataclasses.replace(s, **changes)
 
 
 def _start(model: RobotModel) -> np.ndarray:
@@ -610,7 +607,7 @@ def test_frames_base_offset_and_control_point_offset():
     planner = MotionPlanner(model)
     B = pose([0.3, -0.2, 0.1], rot_z(0.5))  # robot frame seen from the arm frame
     C = pose([0.0, 0.0, 0.12])  # a 12 cm tool
-    s = _settings(model, baseOffset=B[:3], controlPointOffset=C[:3])
+    s = motion_settings(model, baseOffset=B[:3], controlPointOffset=C[:3])
     q0 = _start(model)
     T0 = np.linalg.inv(B) @ planner.kin.control_point(q0, as_se3(C)).homogeneous  # start, robot frame
     T1 = pose(T0[:3, 3] + [0.05, 0.1, -0.05], T0[:3, :3])
@@ -632,15 +629,15 @@ def test_lin_is_slowed_down_for_the_joint_speed_limits():
     q0 = _start(model)
     T0 = planner.kin.control_point(q0).homogeneous
     args = {"carPoint": car(pose(T0[:3, 3] + [0.0, 0.2, 0.0], T0[:3, :3]))}
-    fast = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args, _settings(model)), q0)
+    fast = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args, motion_settings(model)), q0)
     vmax = np.full(7, 0.2)  # [rad/s]
     slow = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args,
-                                      _settings(model, maxSpeedJoint=tuple(vmax))), q0)
+                                      motion_settings(model, maxSpeedJoint=tuple(vmax))), q0)
     assert slow.duration > fast.duration
     assert (np.abs(np.diff(slow.q, axis=0)) / DT).max(axis=0).max() <= 0.2 * (1 + 1e-9)
     with pytest.raises(PlanRefused) as refused:
         planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args,
-                                   _settings(model, maxSpeedJoint=(1e-4,) * 7)), q0)
+                                   motion_settings(model, maxSpeedJoint=(1e-4,) * 7)), q0)
     assert refused.value.code == ReturnCode.VALUE_ERR and "lowest speed" in refused.value.comment
 
 
@@ -668,7 +665,7 @@ def test_family_rules(name: str, op: str, code: ReturnCode):
         args = {"carPoint": car(pose([0.0, 0.05, -0.02], rot_z(0.2) @ tilt))}
     q0 = _start(model)
     try:
-        m = planner.plan(MotionRequest(op, args, _settings(model)), q0)
+        m = planner.plan(MotionRequest(op, args, motion_settings(model)), q0)
     except PlanRefused as exc:
         assert exc.code == code and code == ReturnCode.NG and "Cartesian robot cannot" in exc.comment
         return

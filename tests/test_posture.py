@@ -23,12 +23,12 @@ from jara_arm.robots import RobotModel, robot
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionRequest, MotionSettings
-from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue, hg_matrix
+from jara_arm.schema.planner import MotionRequest
+from jara_arm.schema.types import CarPosWithElbow, LimitValue, hg_matrix
 from jara_arm.services.command.cartesian import CartesianFeedback
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 
-from .support import ServoTime, client_session, launched
+from .support import ServoTime, client_session, launched, motion_settings
 
 POSE_TOL = 1e-6  # [m] and [rad]: a PTP's end against its Cartesian target
 
@@ -70,14 +70,6 @@ def known_solutions(model: RobotModel, kin: Kinematics, q: np.ndarray) -> list[n
     return out
 
 
-def settings(model: RobotModel, **changes: Any) -> MotionSettings:
-    s = MotionSettings(
-        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=model.rated_speed,
-        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=model.min_accel_time,
-        accelTimeCartesian=model.min_accel_time_cartesian, softLimitJoint=model.hard_limits,
-        softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
-        controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
-    return dataclasses.replace(s, **changes)
 
 
 def carpos(T: np.ndarray, elbow: float = 0.0, flag: int = 0) -> dict:
@@ -97,7 +89,8 @@ class Setup:
     postures: Postures
 
     def plan(self, op: str, args: dict, start: np.ndarray, **changes: Any):
-        return self.planner.plan(MotionRequest(op, args, settings(self.model, **changes)), wire(self.model, start))
+        request = MotionRequest(op, args, motion_settings(self.model, **changes))
+        return self.planner.plan(request, wire(self.model, start))
 
     def refused(self, op: str, args: dict, start: np.ndarray, **changes: Any) -> PlanRefused:
         with pytest.raises(PlanRefused) as exc:
@@ -243,7 +236,7 @@ def test_arm6_shoulder_back_straight_ahead_is_refused():
     q = np.array([0.0, 0.2, 0.2, 0.6, 1.17, 0.4])
     args = {"carPoint": carpos(planner.kin.fk(q).homogeneous, 0.0, POSTURE_SET | SHOULDER | ELBOW)}
     with pytest.raises(PlanRefused) as exc:
-        planner.plan(MotionRequest(OP.movePTPCartesianAbs, args, settings(model)), q)
+        planner.plan(MotionRequest(OP.movePTPCartesianAbs, args, motion_settings(model)), q)
     assert exc.value.code == ReturnCode.VALUE_ERR and "0x103 (shoulder back, elbow down" in exc.value.comment
 
 
@@ -266,15 +259,15 @@ def test_malformed_flags_and_robots_without_posture_bits():
         with pytest.raises(PlanRefused) as exc:
             planner.plan(MotionRequest(OP.movePTPCartesianAbs, {"carPoint": carpos(planner.kin.fk(q).homogeneous,
                                                                                    0.0, flag)},
-                                       settings(iiwa)), q)
+                                       motion_settings(iiwa)), q)
         assert exc.value.code == ReturnCode.VALUE_ERR and "structFlag" in exc.value.comment
     for name in ("arm5", "scara4"):
         model = robot(name)
         p = MotionPlanner(model)
         T = p.kin.fk(model.ready_pose).homogeneous
         with pytest.raises(PlanRefused) as exc:
-            p.plan(MotionRequest(OP.movePTPCartesianAbs, {"carPoint": carpos(T, 0.0, POSTURE_SET)}, settings(model)),
-                   np.array(model.ready_pose))
+            p.plan(MotionRequest(OP.movePTPCartesianAbs, {"carPoint": carpos(T, 0.0, POSTURE_SET)},
+                                 motion_settings(model)), np.array(model.ready_pose))
         assert exc.value.code == ReturnCode.VALUE_ERR and "defines no posture flags" in exc.value.comment
 
 

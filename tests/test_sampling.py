@@ -15,16 +15,16 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from jara_arm.robots import RobotModel, robot
+from jara_arm.kinematics import Kinematics, as_se3
+from jara_arm.robots import robot
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionRequest, MotionSettings
-from jara_arm.schema.types import CartesianSpeed, LimitValue
+from jara_arm.schema.types import LimitValue
 from jara_arm.services.planner import sampling
-from jara_arm.kinematics import Kinematics, as_se3
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.sampling import BatchFk, HermiteSpline, batch_arm_angle, batch_log3
 
-from .support import car, pose
+from .support import car, motion_settings, pose
 
 DT = 1e-3
 PLANNED_POS = 1e-6  # [m] every planned sample vs the ideal pose at its path parameter
@@ -35,14 +35,6 @@ def rot(axis: Any, angle: float) -> np.ndarray:
     return pin.exp3(np.asarray(axis, dtype=float) / np.linalg.norm(axis) * angle)
 
 
-def settings(model: RobotModel, **changes: Any) -> MotionSettings:
-    s = MotionSettings(
-        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=model.rated_speed,
-        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=model.min_accel_time,
-        accelTimeCartesian=model.min_accel_time_cartesian, softLimitJoint=model.hard_limits,
-        softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
-        controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
-    return dataclasses.replace(s, **changes)
 
 
 @pytest.fixture(scope="module")
@@ -155,7 +147,7 @@ def test_lin_half_metre_every_sample_on_the_line(iiwa: MotionPlanner, monkeypatc
     q0 = np.array(model.ready_pose)
     T0 = kin.control_point(q0).homogeneous
     a = T0[:3, 3] + [-0.1, -0.25, 0.0]
-    s = settings(model)
+    s = motion_settings(model)
     first = iiwa.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(pose(a, T0[:3, :3]))}, s), q0)
     T1 = pose(a + [0.0, 0.5, 0.0], rot([0, 0, 1], 0.3) @ T0[:3, :3])  # 0.5 m and a turn
     Ta = kin.control_point(first.end).homogeneous
@@ -184,7 +176,7 @@ def test_circ_half_circle_every_sample_on_the_circle(iiwa: MotionPlanner, monkey
     c = p0 + [0.0, -r, 0.0]
     via, target = c + [r, 0.0, 0.0], c + [0.0, -r, 0.0]
     R1 = rot([1, 0, 0], 0.2) @ R0
-    s = settings(model)
+    s = motion_settings(model)
     m = iiwa.plan(MotionRequest(OP.moveCircularCartesianAbs,
                                 {"carPointR": car(pose(via, R0)), "carPointT": car(pose(target, R1))}, s), q0)
     omega = pin.log3(R0.T @ R1)
@@ -206,7 +198,7 @@ def test_lin_with_frames_and_tight_soft_limits(iiwa: MotionPlanner):
     model, kin = iiwa.model, iiwa.kin
     B = pose([0.3, -0.2, 0.1], rot([0, 0, 1], 0.5))
     C = pose([0.0, 0.02, 0.12], rot([1, 0, 0], 0.3))
-    s = settings(model, baseOffset=B[:3], controlPointOffset=C[:3])
+    s = motion_settings(model, baseOffset=B[:3], controlPointOffset=C[:3])
     q0 = np.array(model.ready_pose)
     T0 = np.linalg.inv(B) @ kin.control_point(q0, as_se3(C)).homogeneous
     T1 = pose(T0[:3, 3] + [0.1, 0.15, -0.1], rot([1, 1, 0], 0.4) @ T0[:3, :3])
@@ -233,7 +225,7 @@ def test_slowdown_reuses_the_joint_path(iiwa: MotionPlanner, monkeypatch: pytest
     q0 = np.array(model.ready_pose)
     T0 = kin.control_point(q0).homogeneous
     T1 = pose(T0[:3, 3] + [0.0, 0.2, 0.0], T0[:3, :3])
-    s = settings(model, maxSpeedJoint=(0.2,) * 7)
+    s = motion_settings(model, maxSpeedJoint=(0.2,) * 7)
     m = iiwa.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
     assert len(made) == 1  # one joint path for every slowdown round
     assert m.duration > 0.2 / 0.25 + model.min_accel_time_cartesian  # it was slowed down
@@ -250,7 +242,7 @@ def test_other_families_every_sample_on_the_line(name: str):
     n = model.axis_num
     T0 = planner.kin.control_point(q0[:n]).homogeneous
     a, b = T0[:3, 3], T0[:3, 3] + [0.03, 0.08, -0.03]
-    s = settings(model)
+    s = motion_settings(model)
     m = planner.plan(MotionRequest(OP.moveLinearCartesianRel, {"carPoint": car(pose(b - a))}, s), q0)
     pts = np.array([planner.kin.control_point(q[:n]).translation for q in m.q])
     d = b - a

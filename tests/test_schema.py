@@ -14,8 +14,16 @@ from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import AlarmType, ReturnCode
 from jara_arm.schema.errors import UnknownOperationError, WireError
 from jara_arm.schema.operations import ALL, COMMON, EXT, IDL, MIDDLE, Interface, operation
-from jara_arm.schema.types import (Alarm, CarPosWithElbow, CartesianSpeed, LimitValue, ManipInfo, Time,
-                                   TimedJointPos, hg_matrix)
+from jara_arm.schema.types import (
+    Alarm,
+    CarPosWithElbow,
+    CartesianSpeed,
+    LimitValue,
+    ManipInfo,
+    Time,
+    TimedJointPos,
+    hg_matrix,
+)
 
 RNG = np.random.default_rng(7)
 

@@ -58,13 +58,13 @@ from jara_arm.schema.planner import (
     PlannedPath,
     PlannerProgress,
 )
-from jara_arm.schema.types import CartesianSpeed, LimitValue, Time, TimedJointPos
+from jara_arm.schema.types import LimitValue, Time, TimedJointPos
 from jara_arm.schema.wire_types import TIMED_JOINT_POS
 from jara_arm.services.planner.planning import PREVIEW_POINTS, MotionPlanner
 from jara_arm.services.runtime.wire import Publication
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import free_port
+from .support import free_port, motion_settings
 
 # -- the scene, from the URDFs ---------------------------------------------------------------------
 
@@ -120,12 +120,8 @@ def test_the_soft_limit_box_is_drawn_within_reach() -> None:
 
 def _settings(model: Any, cartesian: tuple[LimitValue, ...] = (LimitValue(2.0, -2.0),) * 3,
               tool: np.ndarray | None = None) -> MotionSettings:
-    return MotionSettings(
-        spdRatioJoint=50, spdRatioCartesian=100, maxSpeedJoint=model.rated_speed,
-        maxSpeedCartesian=CartesianSpeed(0.25, 1.0), accelTimeJoint=model.min_accel_time,
-        accelTimeCartesian=model.min_accel_time_cartesian, softLimitJoint=model.hard_limits,
-        softLimitCartesian=cartesian, baseOffset=np.eye(4)[:3],
-        controlPointOffset=np.eye(4)[:3] if tool is None else tool, home=model.ready_pose)
+    return motion_settings(model, softLimitCartesian=cartesian,
+                           **({} if tool is None else {"controlPointOffset": tool}))
 
 
 def test_the_planner_previews_the_control_point_path() -> None:

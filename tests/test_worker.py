@@ -15,7 +15,7 @@ from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 from jara_arm.services.planner.worker import PlanningProcess
 
 from .support import car
-from .test_sampling import settings
+from .support import motion_settings as settings
 
 
 @pytest.fixture(scope="module")
