@@ -22,12 +22,15 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from jara_arm import robots
 from jara_arm.launcher.client import ArmClient
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding
+from jara_arm.schema.codes import StateBit
 from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
 from jara_arm.services.runtime.zenoh_args import zenoh_config
@@ -262,3 +265,33 @@ def motion_settings(model: RobotModel, **changes: Any) -> MotionSettings:
         softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
         controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
     return dataclasses.replace(s, **changes)
+
+
+class LaunchedArm:
+    """A client of conftest's ``live`` system for tests that run the command line against it: back at the
+    ready pose, servo on, speed 100 %, before each test; ``endpoint`` is where a ``jara-arm`` process connects."""
+
+    def __init__(self, session: zenoh.Session, robot_name: str) -> None:
+        self.client = ArmClient(session)
+        self.model = robots.robot(robot_name)
+        self.proc: Proc | None = None  # the launcher, set by the fixture
+
+    @property
+    def endpoint(self) -> str:
+        assert self.proc is not None
+        return self.proc.argv[self.proc.argv.index("--listen") + 1]
+
+    def reset(self) -> None:
+        if self.client.state() & StateBit.MOVING:
+            self.client.middle(OP.stop)
+            self.client.wait_idle()
+        if self.client.state() & StateBit.ALARM:
+            self.client.common(OP.clearAlarms)
+        assert self.client.common(OP.servoON).ok
+        assert self.client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
+        assert self.client.middle(OP.setHome, {"jointPoint": self.model.ready_pose}).ok
+        assert self.client.middle(OP.goHome).ok
+        self.client.wait_idle()
+
+    def record(self) -> None:
+        """The fixture's hook to forget recorded feedback: these tests record none."""

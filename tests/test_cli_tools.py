@@ -26,12 +26,10 @@ import zenoh
 from jara_arm.launcher import cli
 from jara_arm.launcher.arm_state import format_state, read_state
 from jara_arm.launcher.call import CallError, close_matches, parameter_list, parse_call, reply_json
-from jara_arm.launcher.client import ArmClient
 from jara_arm.launcher.completion import bash_script
 from jara_arm.launcher.echo import EchoKeyError, EchoSettings, Thinner, decode_payload, echo_key, run_echo
 from jara_arm.launcher.state_view import Beat, Snapshot, render, rpy
 from jara_arm.launcher.wait import Condition, state_meets
-from jara_arm.robots import robot
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Reply
@@ -42,7 +40,7 @@ from jara_arm.schema.operations import ALL, MIDDLE, OP
 from jara_arm.schema.types import Alarm, CarPosWithElbow, Time, hg_matrix
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import Proc, ServoTime, wait_until
+from .support import LaunchedArm, Proc, ServoTime, wait_until
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 
@@ -328,34 +326,12 @@ def test_the_completion_command_prints_the_script(capsys: pytest.CaptureFixture[
 
 # -- live: the commands as real processes against `jara-arm up` ----------------------------------------
 
-class Arm:
-    """The live system's client (conftest.py ``live``): back at the ready pose, servo on, for each test."""
+class Arm(LaunchedArm):
+    """The live system's client (conftest.py ``live``), with the servo's clock."""
 
     def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        self.client = ArmClient(session)
-        self.model = robot(robot_name)
+        super().__init__(session, robot_name)
         self.servo_time = ServoTime(session, self.client.keys)
-        self.proc: Proc | None = None  # the launcher, set by the fixture
-
-    @property
-    def endpoint(self) -> str:
-        assert self.proc is not None
-        return self.proc.argv[self.proc.argv.index("--listen") + 1]
-
-    def reset(self) -> None:
-        if self.client.state() & StateBit.MOVING:
-            self.client.middle(OP.stop)
-            self.client.wait_idle()
-        if self.client.state() & StateBit.ALARM:
-            self.client.common(OP.clearAlarms)
-        assert self.client.common(OP.servoON).ok
-        assert self.client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
-        assert self.client.middle(OP.setHome, {"jointPoint": self.model.ready_pose}).ok
-        assert self.client.middle(OP.goHome).ok
-        self.client.wait_idle()
-
-    def record(self) -> None:
-        """The fixture's hook to forget recorded feedback: these tests record none."""
 
     def joints(self) -> np.ndarray:
         return np.asarray(self.client.common(OP.getFeedbackPosJoint)["pos"])

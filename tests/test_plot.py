@@ -26,18 +26,16 @@ import zenoh
 from matplotlib.figure import Figure
 
 from jara_arm.launcher import cli
-from jara_arm.launcher.client import ArmClient
 from jara_arm.launcher.plot import Feedback, PlotSettings, feedback_of, render
 from jara_arm.launcher.plot_figures import ACCEL, HARD, SOFT, SPEED, Size, SizeError, draw_joints, limit_lines
 from jara_arm.launcher.recording import Recorded, RecordingWriter
 from jara_arm.launcher.traces import JointLimits, TraceError, differences, traces
 from jara_arm.robots import robot
-from jara_arm.schema.codes import StateBit
 from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.types import LimitValue
 
-from .support import Proc, wait_recording
+from .support import LaunchedArm, Proc, wait_recording
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 CYCLE = 1e-3  # [s]
@@ -278,33 +276,8 @@ def test_bad_file_names_exit_2(output: str, path: str | None, message: str, tmp_
 
 # -- live: the command as a process against `jara-arm up` -------------------------------------------------
 
-class Arm:
-    """The live system's client (conftest.py ``live``): at the ready pose, servo on, for each test."""
-
-    def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        self.client = ArmClient(session)
-        self.model = robot(robot_name)
-        self.proc: Proc | None = None  # the launcher, set by the fixture
-
-    @property
-    def endpoint(self) -> str:
-        assert self.proc is not None
-        return self.proc.argv[self.proc.argv.index("--listen") + 1]
-
-    def reset(self) -> None:
-        if self.client.state() & StateBit.MOVING:
-            self.client.middle(OP.stop)
-            self.client.wait_idle()
-        if self.client.state() & StateBit.ALARM:
-            self.client.common(OP.clearAlarms)
-        assert self.client.common(OP.servoON).ok
-        assert self.client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
-        assert self.client.middle(OP.setHome, {"jointPoint": self.model.ready_pose}).ok
-        assert self.client.middle(OP.goHome).ok
-        self.client.wait_idle()
-
-    def record(self) -> None:
-        """The fixture's hook to forget recorded feedback: these tests record none."""
+class Arm(LaunchedArm):
+    """The live system's client (conftest.py ``live``)."""
 
     def ptp(self, delta: float = 0.3) -> None:
         target = (np.array(self.model.ready_pose) + delta).tolist()

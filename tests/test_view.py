@@ -40,7 +40,6 @@ from websockets.sync.client import connect
 
 from jara_arm.kinematics import Kinematics
 from jara_arm.launcher import cli
-from jara_arm.launcher.client import ArmClient
 from jara_arm.launcher.scene import RobotGeometry, ShapeKind, box_edges, limit_box
 from jara_arm.launcher.view import View, ViewError, ViewSettings, check_port
 from jara_arm.robots import ROBOTS, robot
@@ -64,7 +63,7 @@ from jara_arm.services.planner.planning import PREVIEW_POINTS, MotionPlanner
 from jara_arm.services.runtime.wire import Publication
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import free_port, motion_settings
+from .support import LaunchedArm, free_port, motion_settings
 
 # -- the scene, from the URDFs ---------------------------------------------------------------------
 
@@ -464,28 +463,7 @@ def test_the_page_shows_a_fake_arm_and_its_moves(lone_session: zenoh.Session, tm
 # -- live: the page of `jara-arm up` in a browser --------------------------------------------------
 
 
-class Arm:
-    """The live system's client (conftest.py ``live``): servo on, at the ready pose, for each test."""
-
-    def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        self.client = ArmClient(session)
-        self.model = robot(robot_name)
-        self.proc: Any = None  # the launcher, set by the fixture
-
-    @property
-    def endpoint(self) -> str:
-        return str(self.proc.argv[self.proc.argv.index("--listen") + 1])
-
-    def reset(self) -> None:
-        if self.client.state() & StateBit.ALARM:
-            self.client.common(OP.clearAlarms)
-        assert self.client.common(OP.servoON).ok
-        assert self.client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
-        assert self.client.middle(OP.movePTPJointAbs, {"jointPoints": list(self.model.ready_pose)}).ok
-        self.client.wait_idle()
-
-    def record(self) -> None:
-        """The fixture's hook to forget recorded feedback: these tests record none."""
+Arm = LaunchedArm  # conftest's ``live`` client
 
 
 @pytest.fixture(scope="module", params=["iiwa"])
