@@ -23,6 +23,8 @@ from .operations import Interface, operation
 
 PREFIX = "JARA_ARM"
 DEFAULT_ARM = "arm0"
+#: The arm chunk of a key expression that matches every arm (``ArmKeys(ANY_ARM)``), e.g. for access rules.
+ANY_ARM = "*"
 _ARM_ID = re.compile(r"[A-Za-z0-9_-]+")
 
 
@@ -93,7 +95,8 @@ class ArmKeys:
     arm: str = DEFAULT_ARM
 
     def __post_init__(self) -> None:
-        check_arm(self.arm)
+        if self.arm != ANY_ARM:
+            check_arm(self.arm)
 
     @property
     def root(self) -> str:
