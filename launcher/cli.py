@@ -44,7 +44,8 @@ from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
 from jara_arm.services.runtime.arguments import non_negative_float, positive_float, positive_int
 from jara_arm.services.runtime.timing import add_health_arguments, health_from_args
-from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, zenoh_config
+from jara_arm.services.runtime.cell import CellError
+from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
 from .call import CallError, parse_call, run_call
 from .client import ArmClient, ClientError
@@ -55,7 +56,7 @@ from .record import RecordSettings, lower_priority, run_record
 from .recording import RecordingError, RecordingWriter
 from .recording import info as recording_info
 from .replay import ReplaySettings, plan, run_replay
-from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
+from .router import DEFAULT_LISTEN, ROUTER_IDENTITY, RouterError, RouterSettings, run_router, zerror_text
 from .services import NAMES, SERVICES, spec
 from .state_view import run_state
 from .supervisor import StopSignals
@@ -333,7 +334,7 @@ def _client_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(parser, default_mode="client")
     for action in parser._actions:
         if "--connect" in action.option_strings:
-            action.help = f"{action.help} (default: {DEFAULT_LISTEN})"
+            action.help = f"{action.help} (default: {DEFAULT_LISTEN}, {default_endpoint('secure')} with --secure)"
 
 
 def _log_level(parser: argparse.ArgumentParser) -> None:
@@ -343,7 +344,7 @@ def _log_level(parser: argparse.ArgumentParser) -> None:
 
 def _router_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """The shared Zenoh options, with the mode fixed to router (so --mode is hidden)."""
-    add_zenoh_arguments(parser, default_mode="router")
+    add_zenoh_arguments(parser, default_mode="router", default_identity=ROUTER_IDENTITY)
     for action in parser._actions:  # argparse has no public way to drop an option
         if "--mode" in action.option_strings:
             action.choices = ["router"]
@@ -366,7 +367,8 @@ def command_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, list[s
 
 
 def _router_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> RouterSettings:
-    settings = RouterSettings(tuple(args.listen), tuple(args.connect), args.config, args.multicast)
+    settings = RouterSettings(tuple(args.listen), tuple(args.connect), args.config, args.multicast,
+                              args.secure, args.identity)
     try:  # resolve the listen endpoints once (--listen, else the config file's, else the default)
         return dataclasses.replace(settings, listen=settings.endpoints())
     except RouterError as exc:
@@ -404,9 +406,12 @@ def _setup_logging(level: str) -> None:
 
 def _open(args: argparse.Namespace, parser: argparse.ArgumentParser) -> zenoh.Session:
     """A session on the network of the client options (exit 2 with the reason if it cannot be had)."""
-    connect = args.connect or ([] if args.config else [DEFAULT_LISTEN])
+    connect = args.connect or ([] if args.config else [default_endpoint(args.secure)])
     try:
-        return zenoh.open(zenoh_config(args.mode, args.listen, connect, args.config, args.multicast))
+        return zenoh.open(zenoh_config(args.mode, args.listen, connect, args.config, args.multicast,
+                                       args.secure, args.identity))
+    except CellError as exc:
+        parser.error(str(exc))
     except zenoh.ZError as exc:
         parser.error(f"cannot join the Zenoh network ({', '.join(connect) or args.config}): "
                      f"{zerror_text(exc)}")

@@ -16,13 +16,17 @@ import zenoh
 
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import any_arm_alive, parse_alive
-from jara_arm.services.runtime.zenoh_args import zenoh_config
+from jara_arm.services.runtime.cell import CellError
+from jara_arm.services.runtime.zenoh_args import default_endpoint, zenoh_config
 
+from .refusals import RefusalLog
 from .supervisor import StopSignals
 
 log = logging.getLogger("jara_arm.launcher")
 
-DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+DEFAULT_LISTEN = default_endpoint(None)
+#: The certificate a router presents in a secure cell (``jara-arm certs init`` issues it).
+ROUTER_IDENTITY = "router"
 _RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
 _JSON5_MESSAGE = re.compile(r'msg: "(.*?)", location')
 #: Unspecified addresses a router may listen on, and what a local process connects to instead.
@@ -48,6 +52,8 @@ class RouterSettings:
     connect: tuple[str, ...] = ()
     config: str | None = None
     multicast: bool = False
+    secure: str | None = None  #: the cell directory (``--secure``); None: an open cell
+    identity: str = ROUTER_IDENTITY
 
     def endpoints(self) -> tuple[str, ...]:
         """The endpoints to listen on: ``--listen``, else the config file's, else the default."""
@@ -60,18 +66,33 @@ class RouterSettings:
                 raise RouterError(f"cannot read Zenoh config {self.config}: {zerror_text(exc)}") from exc
             if isinstance(listen, list) and listen:  # not the per-mode default map
                 return tuple(str(e) for e in listen)
-        return (DEFAULT_LISTEN,)
+        return (default_endpoint(self.secure),)
 
     def config_object(self) -> zenoh.Config:
         try:
-            return zenoh_config("router", self.endpoints(), self.connect, self.config, self.multicast)
+            return zenoh_config("router", self.endpoints(), self.connect, self.config, self.multicast,
+                                self.secure, self.identity)
         except zenoh.ZError as exc:
             raise RouterError(f"bad Zenoh settings: {zerror_text(exc)}") from exc
+        except CellError as exc:
+            raise RouterError(str(exc)) from exc
+
+    def announce(self) -> None:
+        """Say at start how open the cell is: an open one lets anyone who reaches it move the arm."""
+        if self.secure:
+            log.info("secure cell %s: mutual TLS as %r; roles enforced on every link", self.secure, self.identity)
+        else:
+            log.warning("the cell is OPEN: anyone who reaches %s can move the arms (no authentication, no "
+                        "access control); `jara-arm certs init DIR` and --secure DIR close it",
+                        ", ".join(self.endpoints()))
 
 
 def open_router(settings: RouterSettings) -> zenoh.Session:
-    """Open the router session (RouterError, readable, if it cannot)."""
+    """Open the router session (RouterError, readable, if it cannot); a secure one logs its refusals."""
     conf = settings.config_object()
+    settings.announce()
+    if settings.secure:
+        RefusalLog().start()
     try:
         return zenoh.open(conf)
     except zenoh.ZError as exc:

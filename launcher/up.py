@@ -54,6 +54,9 @@ class UpSettings:
     health: Health = SAME_HOST  # passed to every service (--timing, --hung-after)
 
 
+#: The certificate of every process the launcher starts in a secure cell (``jara-arm certs init`` issues it).
+SERVICE_IDENTITY = "service"
+
 #: SCHED_FIFO priority of the router's threads: between the servo (40) and the planner (30).
 ROUTER_RT_PRIORITY = 35
 
@@ -61,7 +64,14 @@ ROUTER_RT_PRIORITY = 35
 def demo_argv(arm: ArmSpec, settings: UpSettings) -> list[str]:
     """``jara-arm demo`` for one arm, a client of the launcher's router."""
     return [sys.executable, "-m", "jara_arm.launcher", "demo", "--arm", arm.arm,
-            "--connect", local_endpoint(settings.router.endpoints()[0])]
+            "--connect", local_endpoint(settings.router.endpoints()[0]), *secure_argv(settings)]
+
+
+def secure_argv(settings: UpSettings) -> list[str]:
+    """What a process the launcher starts presents in a secure cell: the ``service`` certificate."""
+    if not settings.router.secure:
+        return []
+    return ["--secure", os.path.abspath(settings.router.secure), "--identity", SERVICE_IDENTITY]
 
 
 def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list[str]:
@@ -71,6 +81,7 @@ def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list
             "--exit-with-parent", "--log-level", settings.log_level, *health_argv(settings.health)]
     if settings.router.config:
         argv += ["--config", os.path.abspath(settings.router.config)]
+    argv += secure_argv(settings)
     if service.service in (Service.SERVO, Service.PLANNER):
         for box in settings.obstacles:
             argv += ["--obstacle", box]

@@ -74,7 +74,7 @@ def service_parser(service: Service, description: str) -> argparse.ArgumentParse
                    choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="default: INFO")
     p.add_argument("--exit-with-parent", action="store_true",
                    help="exit when the launching process dies (set by the launcher)")
-    add_zenoh_arguments(p)
+    add_zenoh_arguments(p, default_identity="service")
     add_health_arguments(p)
     return p
 
@@ -261,7 +261,7 @@ def stop_event(exit_with_parent: bool = False) -> threading.Event:
 
 
 _SHARED = {"arm", "robot", "log_level", "exit_with_parent", "mode", "listen", "connect", "config",
-           "multicast", "timing", "hung_after", "realtime_priority"}
+           "multicast", "secure", "identity", "timing", "hung_after", "realtime_priority"}
 
 
 def run(service: ArmService, argv: Sequence[str] | None = None) -> int:

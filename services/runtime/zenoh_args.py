@@ -1,7 +1,10 @@
 """Zenoh settings on the command line, shared by every program of the project.
 
 Multicast scouting is off unless ``--multicast`` is given: a controller talks
-only to the endpoints it is told about.
+only to the endpoints it is told about. ``--secure DIR`` joins a secure cell
+(``runtime/cell.py``): mutual TLS as identity ``--identity``, every endpoint
+``tls/``, and the cell's roles enforced by Zenoh on every link the session
+accepts or opens.
 """
 
 from __future__ import annotations
@@ -9,13 +12,24 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Sequence
+from pathlib import Path
 
 import zenoh
 
+from .cell import Cell, CellError, check_endpoints
+
 MODES = ("peer", "client", "router")
+#: The port of the launcher's router; ``tcp/`` for an open cell, ``tls/`` for a secure one.
+DEFAULT_HOST_PORT = "127.0.0.1:7447"
 
 
-def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = "peer") -> None:
+def default_endpoint(secure: str | None) -> str:
+    """The launcher's default endpoint on this host: TLS in a secure cell."""
+    return f"{'tls' if secure else 'tcp'}/{DEFAULT_HOST_PORT}"
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = "peer",
+                        default_identity: str | None = None) -> None:
     g = parser.add_argument_group("zenoh")
     g.add_argument("--mode", choices=MODES, default=default_mode,
                    help=f"Zenoh session mode (default: {default_mode})")
@@ -27,11 +41,23 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = 
                    help="Zenoh configuration file (JSON5); the options above override it")
     g.add_argument("--multicast", action="store_true",
                    help="enable multicast scouting (off by default)")
+    g.add_argument("--secure", metavar="DIR",
+                   help="join the secure cell of DIR (jara-arm certs init): mutual TLS with its certificates, "
+                   "its roles enforced; every endpoint tls/HOST:PORT")
+    g.add_argument("--identity", metavar="NAME", default=default_identity,
+                   help="with --secure: the certificate to present (DIR/NAME.pem)"
+                   + (f" (default: {default_identity})" if default_identity else " (required)"))
 
 
 def zenoh_config(mode: str = "peer", listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 config: str | None = None, multicast: bool = False) -> zenoh.Config:
-    """A Zenoh configuration from the shared settings."""
+                 config: str | None = None, multicast: bool = False, secure: str | None = None,
+                 identity: str | None = None) -> zenoh.Config:
+    """A Zenoh configuration from the shared settings; CellError if ``secure`` cannot be had."""
+    if secure:
+        if not identity:
+            raise CellError("--secure needs --identity NAME: the certificate to present "
+                            f"(one of `jara-arm certs list {secure}`)")
+        check_endpoints([*listen, *connect])
     conf = zenoh.Config.from_file(config) if config else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
     if listen:
@@ -41,15 +67,20 @@ def zenoh_config(mode: str = "peer", listen: Sequence[str] = (), connect: Sequen
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
+    if secure:
+        assert identity is not None
+        Cell(Path(secure)).apply(conf, identity)
     return conf
 
 
 def config_from_args(args: argparse.Namespace) -> zenoh.Config:
-    return zenoh_config(args.mode, args.listen, args.connect, args.config, args.multicast)
+    return zenoh_config(args.mode, args.listen, args.connect, args.config, args.multicast,
+                        args.secure, args.identity)
 
 
 def zenoh_argv(mode: str, listen: Sequence[str] = (), connect: Sequence[str] = (),
-               config: str | None = None, multicast: bool = False) -> list[str]:
+               config: str | None = None, multicast: bool = False, secure: str | None = None,
+               identity: str | None = None) -> list[str]:
     """The command-line form of the settings, to pass them on to a child process."""
     argv = ["--mode", mode]
     for e in listen:
@@ -60,4 +91,8 @@ def zenoh_argv(mode: str, listen: Sequence[str] = (), connect: Sequence[str] = (
         argv += ["--config", config]
     if multicast:
         argv.append("--multicast")
+    if secure:
+        argv += ["--secure", str(Path(secure).resolve())]
+        if identity:
+            argv += ["--identity", identity]
     return argv
