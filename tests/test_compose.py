@@ -109,3 +109,34 @@ def test_dockerignore_keeps_the_context_small() -> None:
 def test_compose_runs_every_service_of_the_launcher(compose: dict[str, Any]) -> None:
     """The containers are the same deployment as `jara-arm up`: no service left out."""
     assert set(NAMES) <= set(compose["services"]), set(NAMES) - set(compose["services"])
+
+
+@pytest.fixture(scope="module")
+def secure_compose() -> dict[str, Any]:
+    data = yaml.safe_load((ROOT / "compose.secure.yaml").read_text())
+    assert isinstance(data, dict) and isinstance(data.get("services"), dict)
+    return data
+
+
+def test_the_secure_variant_covers_every_container(compose: dict[str, Any], secure_compose: dict[str, Any]) -> None:
+    assert set(secure_compose["services"]) == set(compose["services"])
+
+
+def test_the_secure_variant_runs_tls_only_with_its_secrets(secure_compose: dict[str, Any]) -> None:
+    """Every command joins the cell mounted from secrets: TLS endpoints, and the files its identity needs."""
+    from jara_arm.services.runtime.cell import Cell
+
+    declared = secure_compose["secrets"]
+    for name, service in secure_compose["services"].items():
+        cmd = command(service)
+        parser, argv = cli.command_parser(cmd[1:])
+        args = parser.parse_args(argv)
+        assert args.secure == "/run/secrets/cell", f"{name}: {cmd}"
+        endpoints = [*args.listen, *args.connect]
+        assert endpoints and all(e.startswith("tls/") for e in endpoints), f"{name}: {endpoints}"
+        mounted = {Path("/run/secrets") / s["target"] for s in service["secrets"]}
+        cell = Cell(Path(args.secure))
+        needed = {cell.ca_certificate, cell.registry_file, cell.certificate(args.identity),
+                  cell.private_key(args.identity)}
+        assert needed <= mounted, f"{name} lacks {needed - mounted}"
+        assert all(s["source"] in declared for s in service["secrets"])
