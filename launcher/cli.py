@@ -16,6 +16,9 @@
     jara-arm plot [--arm ID] (--seconds S | --from FILE.mcap) [--start S] [--end S] [--robot NAME] -o FILE.png
                   [--path FILE.png] [--size WxH] [--no-show] [Zenoh options]
     jara-arm view [--arm ID]... [--host ADDRESS] [--port P] [--rate HZ] [Zenoh options]
+    jara-arm certs init DIR [--days N] [--host H]...
+    jara-arm certs issue DIR NAME --role ROLE [--host H]... [--days N] [--force]
+    jara-arm certs list DIR
     jara-arm completion bash
 
 ``logs`` and ``alarms`` join any Zenoh network (by default as a client of
@@ -23,7 +26,8 @@ tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM; ``call``,
 ``echo``, ``state`` and ``wait`` join it the same way (``launcher/call.py``,
 ``echo.py``, ``state_view.py``, ``wait.py``), and ``plot`` too unless it reads a
 recording (``plot.py``); ``view`` serves a web page with a live 3D view of the arms
-(``view.py``).
+(``view.py``). ``certs`` makes a secure cell's directory, its certificate
+authority and the certificates of its identities, and lists them (``certs.py``).
 
 A user mistake (unknown robot, bad arm id, a port already in use…) prints one
 readable message and exits with status 2.
@@ -42,11 +46,14 @@ import zenoh
 
 from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
+from jara_arm.schema.roles import Role
 from jara_arm.services.runtime.arguments import non_negative_float, positive_float, positive_int
+from jara_arm.services.runtime.cell import Cell, CellError
 from jara_arm.services.runtime.timing import add_health_arguments, health_from_args
 from jara_arm.services.runtime.cell import CellError
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
+from . import certs
 from .call import CallError, parse_call, run_call
 from .client import ArmClient, ClientError
 from .completion import SHELLS, bash_script
@@ -274,6 +281,45 @@ class _Parsers:
                                help=f"page updates a second at most (default: {DEFAULT_RATE:g})")
         _client_zenoh_arguments(self.view)
 
+        self.certs = sub.add_parser(
+            "certs", help="make a secure cell's certificate authority and issue its certificates",
+            description="A secure cell (--secure DIR) is a directory: its own certificate authority (ca.pem, "
+            "ca.key), a registry of identities and their roles (cell.json), and for each identity NAME a "
+            "certificate (common name NAME), a private key and a Zenoh configuration (NAME.pem, NAME.key, "
+            "NAME.json5). Roles: " + ", ".join(r.value for r in Role) + ".")
+        actions = self.certs.add_subparsers(dest="certs_command", required=True, metavar="ACTION")
+        self.certs_init = actions.add_parser(
+            "init", help="make a cell: its CA, and the identities router and service",
+            description="Make the cell directory DIR (and its parents): a new certificate authority, an empty "
+            "registry, and the identities that `jara-arm up --secure DIR` runs as: router (role router) and "
+            "service (role service). Refuses a directory that already holds a CA.")
+        self.certs_init.add_argument("dir", type=Path, metavar="DIR", help="the cell directory to make")
+        self.certs_init.add_argument("--days", type=positive_int, default=certs.CA_DAYS, metavar="N",
+                                     help=f"the CA's validity [days] (default: {certs.CA_DAYS}); router's and "
+                                     f"service's: the same, or {certs.ISSUE_DAYS} if shorter")
+        _hosts(self.certs_init, "router's and service's certificates")
+        self.certs_issue = actions.add_parser(
+            "issue", help="issue an identity: its key, certificate and Zenoh configuration",
+            description="Issue identity NAME with ROLE in the cell DIR (where its ca.key is): NAME.key, NAME.pem, "
+            "NAME.json5, and its entry in the registry. Copy the three files to NAME's host, and cell.json "
+            "to every router of the cell.")
+        self.certs_issue.add_argument("dir", type=Path, metavar="DIR", help="the cell directory")
+        self.certs_issue.add_argument("name", metavar="NAME",
+                                      help="the identity's name (its certificate's common name): 1-64 of "
+                                      "[A-Za-z0-9_.-]")
+        self.certs_issue.add_argument("--role", required=True, choices=[r.value for r in Role], metavar="ROLE",
+                                      help=f"what NAME may do: {', '.join(r.value for r in Role)}")
+        _hosts(self.certs_issue, "certificate")
+        self.certs_issue.add_argument("--days", type=positive_int, default=certs.ISSUE_DAYS, metavar="N",
+                                      help=f"the certificate's validity [days] (default: {certs.ISSUE_DAYS})")
+        self.certs_issue.add_argument("--force", action="store_true",
+                                      help="replace an identity already issued (new key, new serial)")
+        self.certs_list = actions.add_parser(
+            "list", help="the identities of a cell: name, role, expiry, hosts",
+            description="One line per identity of the cell's registry: name, role, expiry (EXPIRED once "
+            "past), hosts.")
+        self.certs_list.add_argument("dir", type=Path, metavar="DIR", help="the cell directory")
+
         self.completion = sub.add_parser(
             "completion", help="print a shell completion script",
             description="Print the completion script of jara-arm (commands, options, operation names, "
@@ -287,7 +333,7 @@ class _Parsers:
 
 #: The subcommands, in the order of ``jara-arm --help``.
 COMMANDS = ("up", "service", "router", "logs", "alarms", "demo", "call", "echo", "state", "wait", "record", "replay",
-            "plot", "view", "completion")
+            "plot", "view", "certs", "completion")
 
 
 def _obstacle(text: str) -> str:
@@ -318,6 +364,12 @@ def _arm_id(text: str) -> str:
 
 
 
+
+
+def _hosts(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--host", action="append", default=[], metavar="H",
+                        help=f"a DNS name or IP address the {what} may serve TLS on (repeatable; "
+                        f"default: {', '.join(certs.DEFAULT_HOSTS)})")
 
 
 def _arm(parser: argparse.ArgumentParser) -> None:
@@ -542,6 +594,51 @@ def _view(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             return USAGE_ERROR
 
 
+def _certs(args: argparse.Namespace) -> int:
+    """``certs init``, ``issue``, ``list``: what was made or found on stdout; a mistake (exit 2) on stderr."""
+    try:
+        if args.certs_command == "init":
+            cell = certs.init_cell(args.dir, days=args.days, hosts=args.host or certs.DEFAULT_HOSTS)
+            ca_cert, _ = certs.load_ca(cell)
+            root = cell.root.resolve()
+            print(f"made the cell {root}:")
+            print(f"  {root / 'ca.pem'}  the CA's certificate, expires "
+                  f"{ca_cert.not_valid_after_utc:%Y-%m-%dT%H:%M:%SZ}: every host of the cell needs it")
+            print(f"  {root / 'ca.key'}  the CA's private key: issue certificates here, copy it nowhere")
+            print(f"  {root / 'cell.json'}  the registry (name -> role): every router of the cell needs it")
+            print("identities:")
+            identities = certs.list_identities(cell)
+            for line in certs.table(identities):
+                print(f"  {line}")
+            print("  with, for each NAME: NAME.pem (certificate), NAME.key (private key, mode 0600), NAME.json5 "
+                  "(Zenoh configuration)")
+            print(f"next: `jara-arm certs issue {args.dir} NAME --role operator` for each person or program, "
+                  f"then `jara-arm up --secure {args.dir}`")
+            return 0
+        cell = Cell(args.dir)
+        if args.certs_command == "issue":
+            identity = certs.issue(cell, args.name, Role(args.role), hosts=args.host or certs.DEFAULT_HOSTS,
+                                   days=args.days, force=args.force)
+            cert, key, conf = (f.resolve() for f in certs.files_of(cell, identity.name))
+            print(f"issued {identity.name!r}, role {identity.role.value}, serial {identity.serial}, expires "
+                  f"{identity.not_after}, hosts {', '.join(identity.hosts) or '-'}:")
+            print(f"  {cert}  its certificate")
+            print(f"  {key}  its private key (mode 0600): copy it to {identity.name}'s host only")
+            what = ("listens on tls/127.0.0.1:" if identity.role is Role.ROUTER
+                    else "add a router's endpoint to connect/endpoints, e.g. tls/HOST:")
+            print(f"  {conf}  its Zenoh configuration: {what}{certs.ZENOH_PORT}")
+            return 0
+        identities = certs.list_identities(cell)
+        if not identities:
+            print(f"no identities in {cell.root} (issue one with `jara-arm certs issue {args.dir} NAME --role ROLE`)")
+        else:
+            print("\n".join(certs.table(identities)))
+        return 0
+    except (certs.CertsError, CellError) as exc:
+        print(f"jara-arm certs: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+
+
 def _run(argv: list[str]) -> int:
     parsers = _Parsers()
     args = parsers.top.parse_args(argv)
@@ -562,6 +659,8 @@ def _run(argv: list[str]) -> int:
     if args.command == "view":
         _setup_logging("WARNING")
         return _view(args, parsers.view)
+    if args.command == "certs":
+        return _certs(args)
     if args.command == "completion":
         print(bash_script(parsers.commands()), end="")
         return 0

@@ -52,6 +52,14 @@ def _options(parser: argparse.ArgumentParser) -> tuple[list[str], list[str]]:
     return every, valued
 
 
+def _actions(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """The sub-commands of a command that has them (``certs init``, ...), by name; else none."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    return {}
+
+
 def bash_script(commands: Mapping[str, argparse.ArgumentParser]) -> str:
     """The completion function ``_jara_arm`` and its ``complete`` line."""
     words = first_words()
@@ -60,7 +68,16 @@ def bash_script(commands: Mapping[str, argparse.ArgumentParser]) -> str:
         options, valued = _options(parser)
         valued_all.update(valued)
         lines = [f"        {name})", f"            opts={shlex.quote(' '.join(options))}"]
-        if name in words:
+        actions = _actions(parser)
+        if actions:  # the first positional word is the sub-command; the options are the sub-command's
+            lines.append(f"            words={shlex.quote(' '.join(actions))}")
+            lines.append('            case "${COMP_WORDS[2]}" in')
+            for action, action_parser in actions.items():
+                action_options, action_valued = _options(action_parser)
+                valued_all.update(action_valued)
+                lines.append(f"                {action}) opts={shlex.quote(' '.join(action_options))} ;;")
+            lines.append("            esac")
+        elif name in words:
             lines.append(f"            words={shlex.quote(' '.join(words[name]))}")
         if name == "call":  # the servo serves the Common operations only
             lines += ['            for w in "${COMP_WORDS[@]}"; do',

@@ -23,7 +23,9 @@ import numpy as np
 import zenoh
 
 from jara_arm import robots
+from jara_arm.launcher import cli
 from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.completion import bash_script
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
@@ -48,6 +50,16 @@ def pose(p: Any, R: np.ndarray | None = None) -> np.ndarray:
 def car(T: np.ndarray, elbow: float = 0.0) -> dict:
     """A ``CarPosWithElbow`` argument in wire form: pose ``T`` [m], ``elbow`` [rad]."""
     return w.CAR_POS_WITH_ELBOW.encode(CarPosWithElbow(T[:3].copy(), elbow, 0))
+
+
+def bash_complete(words: list[str]) -> list[str]:
+    """What bash offers for the last of ``words`` with jara-arm's completion script sourced."""
+    script = bash_script(cli._Parsers().commands())
+    line = " ".join(f"'{w}'" for w in words)
+    run = subprocess.run(["bash", "-c", (f'{script}\nCOMP_WORDS=({line}); COMP_CWORD={len(words) - 1}; '
+                                         '_jara_arm; printf "%s\\n" "${COMPREPLY[@]}"')],
+                         capture_output=True, text=True, timeout=10, check=True)
+    return [w for w in run.stdout.splitlines() if w]
 
 
 def free_port() -> int:

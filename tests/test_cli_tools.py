@@ -26,7 +26,6 @@ import zenoh
 from jara_arm.launcher import cli
 from jara_arm.launcher.arm_state import format_state, read_state
 from jara_arm.launcher.call import CallError, close_matches, parameter_list, parse_call, reply_json
-from jara_arm.launcher.completion import bash_script
 from jara_arm.launcher.echo import EchoKeyError, EchoSettings, Thinner, decode_payload, echo_key, run_echo
 from jara_arm.launcher.state_view import Beat, Snapshot, render, rpy
 from jara_arm.launcher.wait import Condition, state_meets
@@ -40,7 +39,7 @@ from jara_arm.schema.operations import ALL, MIDDLE, OP
 from jara_arm.schema.types import Alarm, CarPosWithElbow, Time, hg_matrix
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import LaunchedArm, Proc, ServoTime, wait_until
+from .support import LaunchedArm, Proc, ServoTime, bash_complete, wait_until
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 
@@ -293,28 +292,18 @@ def test_the_state_view_shows_every_part() -> None:
 
 # -- completion ----------------------------------------------------------------------------------------
 
-def _complete(words: list[str]) -> list[str]:
-    """What bash offers for the last of ``words`` with the completion script sourced."""
-    script = bash_script(cli._Parsers().commands())
-    line = " ".join(f"'{w}'" for w in words)
-    run = subprocess.run(["bash", "-c", f'{script}\nCOMP_WORDS=({line}); COMP_CWORD={len(words) - 1}; '
-                          '_jara_arm; printf "%s\\n" "${COMPREPLY[@]}"'],
-                         capture_output=True, text=True, timeout=10, check=True)
-    return [w for w in run.stdout.splitlines() if w]
-
-
 @pytest.mark.skipif(shutil.which("bash") is None, reason="no bash to run the script")
 def test_bash_completes_commands_operations_keys_and_conditions() -> None:
-    assert _complete(["jara-arm", "ca"]) == ["call"]
-    assert _complete(["jara-arm", "call", "movePTPJ"]) == ["movePTPJointAbs", "movePTPJointRel"]
-    assert _complete(["jara-arm", "call", "--servo", "setS"]) == ["setSoftLimitJoint"]
-    assert _complete(["jara-arm", "call", "--arm", "a1", "servoO"]) == ["servoOFF", "servoON"]
-    assert _complete(["jara-arm", "call", "--arm", "se"]) == []  # an option's value
-    assert _complete(["jara-arm", "call", "servoON", "se"]) == []  # the JSON is not an operation
-    assert _complete(["jara-arm", "call", "--se"]) == ["--servo"]
-    assert _complete(["jara-arm", "echo", "Servo/pos"]) == ["Servo/posCmd", "Servo/posBlock", "Servo/posFeedback"]
-    assert "log/servo" in _complete(["jara-arm", "echo", "log/"])
-    assert _complete(["jara-arm", "wait", "no"]) == ["no-alarm"]
+    assert bash_complete(["jara-arm", "ca"]) == ["call"]
+    assert bash_complete(["jara-arm", "call", "movePTPJ"]) == ["movePTPJointAbs", "movePTPJointRel"]
+    assert bash_complete(["jara-arm", "call", "--servo", "setS"]) == ["setSoftLimitJoint"]
+    assert bash_complete(["jara-arm", "call", "--arm", "a1", "servoO"]) == ["servoOFF", "servoON"]
+    assert bash_complete(["jara-arm", "call", "--arm", "se"]) == []  # an option's value
+    assert bash_complete(["jara-arm", "call", "servoON", "se"]) == []  # the JSON is not an operation
+    assert bash_complete(["jara-arm", "call", "--se"]) == ["--servo"]
+    assert bash_complete(["jara-arm", "echo", "Servo/pos"]) == ["Servo/posCmd", "Servo/posBlock", "Servo/posFeedback"]
+    assert "log/servo" in bash_complete(["jara-arm", "echo", "log/"])
+    assert bash_complete(["jara-arm", "wait", "no"]) == ["no-alarm"]
 
 
 def test_the_completion_command_prints_the_script(capsys: pytest.CaptureFixture[str]) -> None:
