@@ -496,7 +496,10 @@ def _tool(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
                                  tty=sys.stdout.isatty())
             return run_wait(client, Condition(args.condition), args.timeout, args.poll, signals.stop, sys.stderr)
         except ClientError as exc:
-            print(f"jara-arm {name}: {exc}", file=sys.stderr)
+            # A router drops what a role may not do without a word to the client: silence.
+            hint = (f" (in a secure cell this is also what identity {args.identity!r} gets for what its role "
+                    "may not do: the router's log says which)") if args.secure else ""
+            print(f"jara-arm {name}: {exc}{hint}", file=sys.stderr)
             return 1
         finally:
             client.close()
