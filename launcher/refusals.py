@@ -32,6 +32,8 @@ log = logging.getLogger("jara_arm.router")
 LOG_FILTER = "warn,zenoh::net::routing::interceptor::access_control=trace"
 #: The same refusal (who, what, where) is logged at most once in this period [s]; the others are counted.
 REPEAT_PERIOD = 5.0
+#: Refusals remembered for counting repeats; a peer that tries many keys must not grow it without end.
+REMEMBERED = 1000
 _PIPE_SIZE = 1 << 20  # room for bursts while the filter thread waits for the GIL
 _ANSI = re.compile(rb"\x1b\[[0-9;]*m")
 _MARKERS = (b"unauthorized", b"caching permissions", b"WARN", b"ERROR")
@@ -120,6 +122,8 @@ class RefusalLog:
         if now - last < REPEAT_PERIOD:
             self._repeats[message] = (last, repeats + 1)
             return
+        if len(self._repeats) >= REMEMBERED:
+            self._repeats = {m: v for m, v in self._repeats.items() if now - v[0] < REPEAT_PERIOD}
         self._repeats[message] = (now, 0)
         log.warning("%s%s", message, f" ({repeats} more times since)" if repeats else "")
 

@@ -1,0 +1,85 @@
+"""The roles of a secure cell as access rules (``schema/roles.py``): what each may send, checked key by key.
+
+The live refusals are in test_secure.py; these check the rules themselves, for
+every operation of the tables.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import zenoh
+
+from jara_arm.schema.keys import ANY_ARM, ArmKeys, Service
+from jara_arm.schema.operations import COMMON, EXT, MIDDLE, Interface
+from jara_arm.schema.roles import EVERY_MESSAGE, Role, RoleError, access_control, changes_nothing, ingress_rights
+
+KEYS = ArmKeys(ANY_ARM)
+CLIENTS = (Role.OPERATOR, Role.LOW_LEVEL, Role.OBSERVER)
+OPERATIONS = [*COMMON.values(), *MIDDLE.values(), *EXT.values()]
+
+
+def test_a_getter_reads_only() -> None:
+    """Every operation the observer may call takes no input and returns something; every other one is not
+    a getter (a setter, a motion, a command)."""
+    getters = [op for op in OPERATIONS if changes_nothing(op)]
+    assert getters and all(not op.inputs and op.outputs and not op.motion for op in getters)
+    assert not any(changes_nothing(op) for op in OPERATIONS if op.motion or op.inputs)
+    assert {"servoON", "servoOFF", "clearAlarms", "setSpeedJoint", "pause", "stop"} & \
+        {op.name for op in getters} == set()
+
+
+def test_an_observer_may_query_the_getters_and_nothing_else() -> None:
+    queries = set(ingress_rights(Role.OBSERVER)["query"])
+    for op in OPERATIONS:
+        key = KEYS.interface(op.interface, op.name)
+        assert (key in queries) == changes_nothing(op), key
+        if op.interface is Interface.COMMON:
+            assert (KEYS.servo_common(op.name) in queries) == changes_nothing(op)
+            assert (KEYS.monitor_common(op.name) in queries) == changes_nothing(op)
+    assert KEYS.planner_plan not in queries and KEYS.planner_control not in queries
+
+
+def test_an_operator_may_call_every_operation_but_no_internal_queryable() -> None:
+    queries = set(ingress_rights(Role.OPERATOR)["query"])
+    assert {KEYS.interface(op.interface, op.name) for op in OPERATIONS} <= queries
+    assert {KEYS.servo_common(name) for name in COMMON} <= queries
+    assert KEYS.planner_plan not in queries and KEYS.planner_control not in queries and KEYS.alarm_copy not in queries
+
+
+@pytest.mark.parametrize("role", CLIENTS)
+def test_no_client_may_stand_in_for_a_service(role: Role) -> None:
+    rights = ingress_rights(role)
+    for message in ("declare_queryable", "liveliness_token", "reply", "delete"):
+        assert message not in rights, f"{role}: {message}"
+    puts = set(rights["put"])
+    assert KEYS.estop in puts  # anyone who can see the arm may stop it
+    for internal in (KEYS.pos_block, KEYS.heartbeat(Service.SERVO), KEYS.heartbeat(), KEYS.monitor_report,
+                     KEYS.command_settings, KEYS.planner_progress):
+        assert internal not in puts
+    assert (KEYS.pos_cmd in puts) == (role is Role.LOW_LEVEL)
+
+
+def test_services_and_routers_may_send_everything() -> None:
+    for role in (Role.SERVICE, Role.ROUTER):
+        assert set(ingress_rights(role)) == set(EVERY_MESSAGE)
+
+
+def test_zenoh_takes_the_configuration() -> None:
+    acl = access_control({"router": Role.ROUTER, "service": Role.SERVICE, "alice": Role.OPERATOR,
+                          "lowell": Role.LOW_LEVEL, "olga": Role.OBSERVER})
+    assert acl["default_permission"] == "deny"
+    assert {s["id"] for s in acl["subjects"]} == {r.value for r in Role}
+    conf = zenoh.Config()
+    conf.insert_json5("access_control", json.dumps(acl))  # ZError if Zenoh refused a field
+
+
+def test_a_role_without_holders_is_left_out() -> None:
+    acl = access_control({"olga": Role.OBSERVER})
+    assert [s["cert_common_names"] for s in acl["subjects"]] == [["olga"]]
+
+
+def test_an_unknown_role_names_the_valid_ones() -> None:
+    with pytest.raises(RoleError, match="roles: service, router, operator, low-level, observer"):
+        Role.parse("admin")
