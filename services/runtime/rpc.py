@@ -95,6 +95,7 @@ class QueryServer:
         self._entities = Entities()
         self._queryable = self._entities.enter_context(
             session.declare_queryable(key, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY)))
+        self._busy = threading.Event()  # set while the worker answers a query (not while it waits in recv)
         self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
         self._thread.start()
 
@@ -104,6 +105,7 @@ class QueryServer:
                 query = self._queryable.recv()
             except Exception:  # the queryable was undeclared: we are shutting down
                 return
+            self._busy.set()
             try:
                 if (late := expired(query)) is not None:
                     log.warning("dropped %s unanswered: its requester gave up %.0f ms ago (this service was "
@@ -119,6 +121,7 @@ class QueryServer:
                 log.exception("could not reply to %s", query.key_expr)
             finally:
                 query.drop()  # sends the final reply marker now, not at garbage collection
+                self._busy.clear()
 
     def _replied(self, key: str, request: bytes, encoding: Encoding, reply: bytes) -> None:
         """After each reply (on the worker thread): nothing here."""
@@ -127,7 +130,8 @@ class QueryServer:
         """Stop serving. The worker may sit in ``recv()``, which holds the queryable; it
         ends when the session closes, so call :meth:`join` after the session's block."""
         self._entities.close()  # the queryable may stay held by recv(): Entities logs it
-        self._thread.join(timeout=0.2)
+        if self._busy.is_set():  # let the answer in hand go out while the session is still open
+            self._thread.join(timeout=0.2)
 
     def join(self, timeout: float = 2.0) -> None:
         """Wait for the worker to end (after the session closed): a thread still inside
