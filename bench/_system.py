@@ -26,17 +26,20 @@ def free_port() -> int:
 @contextlib.contextmanager
 def launched_system(robot: str = "iiwa", arm: str = "arm0", timeout: float = 60.0,
                     arms: list[tuple[str, str]] | None = None, extra: list[str] | None = None,
-                    lines: list[str] | None = None) -> Iterator[int]:
+                    lines: list[str] | None = None, secure: str | None = None) -> Iterator[int]:
     """``jara-arm up`` on a free port; yields the port once the ready line is printed.
 
     ``arms``: several (arm, robot) instead of one; ``extra``: more launcher options;
-    ``lines``: a list that receives the launcher's output (for a report).
+    ``lines``: a list that receives the launcher's output (for a report); ``secure``: a cell
+    directory (``jara-arm certs init``) to run it in, listening on TLS.
     """
     port = free_port()
+    scheme = "tls" if secure else "tcp"
+    extra = [*(extra or []), *(["--secure", secure] if secure else [])]
     arm_args = [a for arm_id, rob in (arms or [(arm, robot)]) for a in ("--arm", f"{arm_id}:{rob}")]
     proc = subprocess.Popen(
         [sys.executable, "-m", "jara_arm.launcher", "up", *arm_args,
-         "--listen", f"tcp/127.0.0.1:{port}", *(extra or [])],
+         "--listen", f"{scheme}/127.0.0.1:{port}", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lines = [] if lines is None else lines
