@@ -307,3 +307,12 @@ class LaunchedArm:
 
     def record(self) -> None:
         """The fixture's hook to forget recorded feedback: these tests record none."""
+
+    def explain(self, lines: int = 40) -> str:
+        """What a failed check needs: the state, the active alarms and the system's last log lines."""
+        try:
+            state = f"state 0x{self.client.state():02x}, alarms {self.client.common(OP.getActiveAlarm)['alarms']}"
+        except Exception as exc:  # the report must not hide the failure it explains
+            state = f"state unknown ({exc})"
+        tail = "\n".join(self.proc.lines[-lines:]) if self.proc is not None else ""
+        return f"{state}\n{tail}"
