@@ -499,7 +499,8 @@ def test_live_the_page_shows_the_arm_and_a_ptp_move(arm: Arm, tmp_path: Path) ->
             shown = settled_shot(b, tmp_path / "arm.png")
             assert differ(empty, shown) > 0.02, "the page looks the same with the arm as without"
             target = np.array(arm.model.ready_pose) + np.array([0.8, 0.3, 0.0, 0.3, 0.0, 0.4, 0.0])
-            assert arm.client.middle(OP.movePTPJointAbs, {"jointPoints": target.tolist()}).ok
+            reply = arm.client.middle(OP.movePTPJointAbs, {"jointPoints": target.tolist()})
+            assert reply.ok, f"{reply}\n{arm.explain()}"
             arm.client.wait_idle()
             assert not arm.client.state() & StateBit.ALARM, arm.explain()
             # The open page follows the move by itself (no reload).
