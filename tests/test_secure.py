@@ -236,3 +236,14 @@ def test_an_open_router_says_so() -> None:
         assert "the cell is OPEN" in router.output
     finally:
         assert router.stop(signal.SIGINT) == 0
+
+
+def test_up_secure_with_the_demo_prints_it(tmp_path: Path) -> None:
+    """The demo's lines reach the terminal: a secure router sends fd 1 through its refusal filter."""
+    cell = init_cell(tmp_path / "cell")
+    up = Proc([*LAUNCHER, "up", "--secure", str(cell.root), "--listen", f"tls/127.0.0.1:{free_port()}", "--demo"])
+    try:
+        up.wait_for_line("demo done", timeout=90)
+        assert "FAILED" not in up.output and "RAISED" not in up.output, up.output[-4000:]
+    finally:
+        assert up.stop(signal.SIGINT, timeout=20) == 0, up.output[-4000:]
