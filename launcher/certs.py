@@ -31,8 +31,11 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from jara_arm.schema.errors import JaraArmError
+from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys
+from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.roles import Role, RoleError
-from jara_arm.services.runtime.cell import Cell, CellError, Identity, check_name
+from jara_arm.services.runtime.cell import ROUTER_IDENTITY, SERVICE_IDENTITY, Cell, CellError, Identity, check_name
+from jara_arm.services.runtime.zenoh_args import DEFAULT_PORT, default_endpoint
 
 #: What a certificate is valid for unless told otherwise: this host, by name and by address.
 DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
@@ -42,9 +45,7 @@ MAX_DAYS = 36500  #: a hundred years: beyond that a date is more likely a typing
 #: How far back a new certificate's validity starts: a host whose clock is a little behind still accepts it.
 CLOCK_SKEW = dt.timedelta(minutes=5)
 #: The identities that ``jara-arm up --secure DIR`` runs as: its router, and its services.
-CELL_IDENTITIES = (("router", Role.ROUTER), ("service", Role.SERVICE))
-#: The port of the endpoints in NAME.json5 and its examples (Zenoh's default).
-ZENOH_PORT = 7447
+CELL_IDENTITIES = ((ROUTER_IDENTITY, Role.ROUTER), (SERVICE_IDENTITY, Role.SERVICE))
 #: Names whose files would be the CA's (ca.pem, ca.key), on a file system that ignores case too.
 _RESERVED = frozenset({"ca"})
 _DNS_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
@@ -300,29 +301,30 @@ def zenoh_settings(cell: Cell, name: str, role: Role) -> dict[str, object]:
         "transport": {"link": {"tls": cell.tls(name)}},
     }
     if role is Role.ROUTER:  # a router without listen endpoints would listen on plain TCP, every interface
-        settings["listen"] = {"endpoints": [f"tls/127.0.0.1:{ZENOH_PORT}"]}
+        settings["listen"] = {"endpoints": [default_endpoint(secure=str(cell.root))]}
     return settings
 
 
 def zenoh_file_text(cell: Cell, name: str, role: Role) -> str:
     """``NAME.json5``: :func:`zenoh_settings` under a comment saying whose it is and how to use it."""
     root = cell.root.resolve()
-    key = "JARA_ARM/arm0/Common/getState"
+    key = ArmKeys(DEFAULT_ARM).interface(Interface.COMMON, OP.getState)
+    local = default_endpoint(secure=str(root))
     if role is Role.ROUTER:
         use = [
-            f"A Zenoh router: it listens on tls/127.0.0.1:{ZENOH_PORT}; change listen/endpoints to serve",
+            f"A Zenoh router: it listens on {local}; change listen/endpoints to serve",
             "other hosts (an address or name of the certificate's hosts).",
             f"The cell's own router is `jara-arm router --secure {root}` (or `jara-arm up --secure {root}`),",
             "which enforces the roles of cell.json; this file alone does not.",
         ]
     else:
         use = [
-            f"A Zenoh client: add the endpoint of a router of the cell, e.g. tls/HOST:{ZENOH_PORT}, where HOST",
+            f"A Zenoh client: add the endpoint of a router of the cell, e.g. tls/HOST:{DEFAULT_PORT}, where HOST",
             "is one of the router certificate's hosts (jara-arm certs list), then:",
-            f"    z_get --config {name}.json5 -e tls/127.0.0.1:{ZENOH_PORT} -s {key}",
+            f"    z_get --config {name}.json5 -e {local} -s {key}",
             "or, in Python:",
             f"    conf = zenoh.Config.from_file({str(cell.zenoh_file(name).resolve())!r})",
-            f"    conf.insert_json5(\"connect/endpoints\", '[\"tls/127.0.0.1:{ZENOH_PORT}\"]')",
+            f"    conf.insert_json5(\"connect/endpoints\", '[\"{local}\"]')",
             "    session = zenoh.open(conf)",
         ]
     header = [

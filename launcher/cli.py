@@ -48,9 +48,9 @@ from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
 from jara_arm.schema.roles import Role
 from jara_arm.services.runtime.arguments import non_negative_float, positive_float, positive_int
-from jara_arm.services.runtime.cell import Cell, CellError
+from jara_arm.services.runtime.cell import ROUTER_IDENTITY, Cell, CellError
 from jara_arm.services.runtime.timing import add_health_arguments, health_from_args
-from jara_arm.services.runtime.cell import CellError
+from jara_arm.services.runtime.zenoh_args import DEFAULT_PORT as ZENOH_PORT
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
 from . import certs
@@ -63,7 +63,7 @@ from .record import RecordSettings, lower_priority, run_record
 from .recording import RecordingError, RecordingWriter
 from .recording import info as recording_info
 from .replay import ReplaySettings, plan, run_replay
-from .router import DEFAULT_LISTEN, ROUTER_IDENTITY, RouterError, RouterSettings, run_router, zerror_text
+from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
 from .services import NAMES, SERVICES, spec
 from .state_view import run_state
 from .supervisor import StopSignals
@@ -605,10 +605,10 @@ def _certs(args: argparse.Namespace) -> int:
             ca_cert, _ = certs.load_ca(cell)
             root = cell.root.resolve()
             print(f"made the cell {root}:")
-            print(f"  {root / 'ca.pem'}  the CA's certificate, expires "
+            print(f"  {cell.ca_certificate.resolve()}  the CA's certificate, expires "
                   f"{ca_cert.not_valid_after_utc:%Y-%m-%dT%H:%M:%SZ}: every host of the cell needs it")
-            print(f"  {root / 'ca.key'}  the CA's private key: issue certificates here, copy it nowhere")
-            print(f"  {root / 'cell.json'}  the registry (name -> role): every router of the cell needs it")
+            print(f"  {cell.ca_key.resolve()}  the CA's private key: issue certificates here, copy it nowhere")
+            print(f"  {cell.registry_file.resolve()}  the registry (name -> role): every router of the cell needs it")
             print("identities:")
             identities = certs.list_identities(cell)
             for line in certs.table(identities):
@@ -629,7 +629,7 @@ def _certs(args: argparse.Namespace) -> int:
             print(f"  {key}  its private key (mode 0600): copy it to {identity.name}'s host only")
             what = ("listens on tls/127.0.0.1:" if identity.role is Role.ROUTER
                     else "add a router's endpoint to connect/endpoints, e.g. tls/HOST:")
-            print(f"  {conf}  its Zenoh configuration: {what}{certs.ZENOH_PORT}")
+            print(f"  {conf}  its Zenoh configuration: {what}{ZENOH_PORT}")
             return 0
         identities = certs.list_identities(cell)
         if not identities:

@@ -16,7 +16,7 @@ import zenoh
 
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import any_arm_alive, parse_alive
-from jara_arm.services.runtime.cell import CellError
+from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
 from jara_arm.services.runtime.zenoh_args import default_endpoint, zenoh_config
 
 from .refusals import RefusalLog
@@ -25,8 +25,6 @@ from .supervisor import StopSignals
 log = logging.getLogger("jara_arm.launcher")
 
 DEFAULT_LISTEN = default_endpoint(None)
-#: The certificate a router presents in a secure cell (``jara-arm certs init`` issues it).
-ROUTER_IDENTITY = "router"
 _RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
 _JSON5_MESSAGE = re.compile(r'msg: "(.*?)", location')
 #: Unspecified addresses a router may listen on, and what a local process connects to instead.

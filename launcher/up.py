@@ -19,7 +19,7 @@ import sys
 import time
 
 from jara_arm.schema.keys import Service, any_arm_log
-
+from jara_arm.services.runtime.cell import SERVICE_IDENTITY
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.timing import SAME_HOST, Health, health_argv
 
@@ -53,9 +53,6 @@ class UpSettings:
     demo: bool = False  # once ready, run ``jara-arm demo`` on every arm (its output on stdout)
     health: Health = SAME_HOST  # passed to every service (--timing, --hung-after)
 
-
-#: The certificate of every process the launcher starts in a secure cell (``jara-arm certs init`` issues it).
-SERVICE_IDENTITY = "service"
 
 #: SCHED_FIFO priority of the router's threads: between the servo (40) and the planner (30).
 ROUTER_RT_PRIORITY = 35

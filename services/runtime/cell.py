@@ -32,6 +32,10 @@ from jara_arm.schema.roles import Role, RoleError, access_control
 #: An identity's name: its certificate's common name and its files' stem.
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 REGISTRY_FORMAT = 1
+#: The identities ``jara-arm certs init`` issues and ``jara-arm up --secure`` runs as: its router, and
+#: every process it starts.
+ROUTER_IDENTITY = "router"
+SERVICE_IDENTITY = "service"
 
 
 class CellError(JaraArmError, ValueError):

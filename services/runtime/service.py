@@ -49,6 +49,7 @@ from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys, Service, check_arm
 from jara_arm.schema.operations import Operation
 
+from .cell import SERVICE_IDENTITY
 from .heartbeat import Heartbeat, Pulse
 from .logs import ZenohLogHandler, setup_stderr
 from .realtime import realtime_process
@@ -74,7 +75,7 @@ def service_parser(service: Service, description: str) -> argparse.ArgumentParse
                    choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="default: INFO")
     p.add_argument("--exit-with-parent", action="store_true",
                    help="exit when the launching process dies (set by the launcher)")
-    add_zenoh_arguments(p, default_identity="service")
+    add_zenoh_arguments(p, default_identity=SERVICE_IDENTITY)
     add_health_arguments(p)
     return p
 

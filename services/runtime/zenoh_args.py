@@ -19,8 +19,9 @@ import zenoh
 from .cell import Cell, CellError, check_endpoints
 
 MODES = ("peer", "client", "router")
-#: The port of the launcher's router; ``tcp/`` for an open cell, ``tls/`` for a secure one.
-DEFAULT_HOST_PORT = "127.0.0.1:7447"
+#: The port of the launcher's router (Zenoh's own default); ``tcp/`` for an open cell, ``tls/`` for a secure one.
+DEFAULT_PORT = 7447
+DEFAULT_HOST_PORT = f"127.0.0.1:{DEFAULT_PORT}"
 
 
 def default_endpoint(secure: str | None) -> str:
@@ -76,23 +77,3 @@ def zenoh_config(mode: str = "peer", listen: Sequence[str] = (), connect: Sequen
 def config_from_args(args: argparse.Namespace) -> zenoh.Config:
     return zenoh_config(args.mode, args.listen, args.connect, args.config, args.multicast,
                         args.secure, args.identity)
-
-
-def zenoh_argv(mode: str, listen: Sequence[str] = (), connect: Sequence[str] = (),
-               config: str | None = None, multicast: bool = False, secure: str | None = None,
-               identity: str | None = None) -> list[str]:
-    """The command-line form of the settings, to pass them on to a child process."""
-    argv = ["--mode", mode]
-    for e in listen:
-        argv += ["--listen", e]
-    for e in connect:
-        argv += ["--connect", e]
-    if config:
-        argv += ["--config", config]
-    if multicast:
-        argv.append("--multicast")
-    if secure:
-        argv += ["--secure", str(Path(secure).resolve())]
-        if identity:
-            argv += ["--identity", identity]
-    return argv
