@@ -5,8 +5,11 @@ Measures, and prints one line each:
 * reply -> motion: from the ``Planner/plan`` reply to the first feedback sample
   that has left the start (PTP from rest, 50 %), median / max over ``--n`` moves;
 * request -> first position command (the first ``PositionBlock`` seen on the
-  wire) for a 0.5 m LIN and a half-circle CIRC (radius 0.15 m) at 0.25 m/s,
-  each once, the planner's own planning time (its log), and the same two
+  wire) and request -> reply for a 0.5 m LIN and a half-circle CIRC (radius
+  0.15 m) at 0.25 m/s, from rest, ``--rounds`` times each (median, max): with
+  the planner's early start the first command follows the head (its first
+  knot interval), the reply the whole; ``--early-start-ms 0`` measures
+  acceptance first. Then the planner's own planning time (its log), and the same two
   motions planned in this process (``MotionPlanner.plan``, median wall and
   least CPU time of 9: the planning cost without the services and the
   machine's other load); ``bench/plan_stages.py`` splits that cost by stage;
@@ -21,7 +24,7 @@ Measures, and prints one line each:
   LIN and a half-circle CIRC (radius 0.15 m) on iiwa and panda, median of 9,
   with one box in the world, clear of the paths.
 
-    python bench/motion.py [--n 10] [--lead-ms 12]
+    python bench/motion.py [--n 10] [--rounds 5] [--lead-ms 12] [--early-start-ms 0]
 """
 
 from __future__ import annotations
@@ -177,7 +180,8 @@ def reply_to_motion(b: Bench, n: int) -> str:
             f"max {lat_ms.max():.1f} ms over {n} PTP moves")
 
 
-def cartesian(b: Bench) -> list[str]:
+def cartesian(b: Bench, rounds: int) -> list[str]:
+    """``rounds`` times: the 0.5 m LIN, the half circle from its end, an unmeasured LIN back."""
     out = []
     _, _, _, fb, _ = b.drain()
     q0 = np.array(MODEL.ready_pose)
@@ -185,39 +189,40 @@ def cartesian(b: Bench) -> list[str]:
     p0, R0 = T0.translation, T0.rotation
     # 0.5 m LIN, from the ready pose across the front of the robot
     a = p0 + [-0.1, -0.25, 0.0]
-    m, _ = b.plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)})
-    b.wait_done(m)
     bb = a + [0.0, 0.5, 0.0]
-    b.drain()
-    t0 = time.time()
-    lin_args = {"carPoint": car(bb, R0)}
-    m, reply = b.plan(OP.moveLinearCartesianAbs, lin_args)
-    t_reply = time.time()
-    b.wait_done(m)
-    tc, cmd, _, fb, _ = b.drain()
-    out.append(f"LIN 0.5 m at 0.25 m/s ({reply.duration:.2f} s): request -> reply "
-               f"{1e3 * (t_reply - t0):.0f} ms, request -> first command {1e3 * (tc[0] - t0):.0f} ms; "
-               f"deviation planned {line_dev(b.tcp(cmd), a, bb) * 1e6:.3f} µm, "
-               f"executed {line_dev(b.tcp(fb), a, bb) * 1e6:.1f} µm")
     # half circle, radius 0.15 m, in the x-y plane
     r = 0.15
     c = bb + [0.0, -r, 0.0]
     via, target = c + [r, 0.0, 0.0], c + [0.0, -r, 0.0]
-    t0 = time.time()
+    lin_args = {"carPoint": car(bb, R0)}
     circ_args = {"carPointR": car(via, R0), "carPointT": car(target, R0)}
-    m, reply = b.plan(OP.moveCircularCartesianAbs, circ_args)
-    t_reply = time.time()
-    b.wait_done(m)
-    tc, cmd, _, fb, _ = b.drain()
 
     def circ_dev(p: np.ndarray) -> float:
         radial = np.linalg.norm(p[:, :2] - c[:2], axis=1) - r
         return float(np.hypot(radial, p[:, 2] - c[2]).max())
 
-    out.append(f"CIRC half circle r = 0.15 m at 0.25 m/s ({reply.duration:.2f} s): request -> reply "
-               f"{1e3 * (t_reply - t0):.0f} ms, request -> first command {1e3 * (tc[0] - t0):.0f} ms; "
-               f"deviation planned {circ_dev(b.tcp(cmd)) * 1e6:.3f} µm, "
-               f"executed {circ_dev(b.tcp(fb)) * 1e6:.1f} µm")
+    measured: dict[str, list[tuple[float, float, float]]] = {"LIN": [], "CIRC": []}  # [ms], [ms], [m]
+    durations = {}
+    for _ in range(rounds):
+        m, _ = b.plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)})
+        b.wait_done(m)
+        for name, op, args, dev in (("LIN", OP.moveLinearCartesianAbs, lin_args,
+                                     lambda p: line_dev(p, a, bb)),
+                                    ("CIRC", OP.moveCircularCartesianAbs, circ_args, circ_dev)):
+            b.drain()
+            t0 = time.time()
+            m, reply = b.plan(op, args)
+            t_reply = time.time()
+            b.wait_done(m)
+            tc, cmd, _, fb, _ = b.drain()
+            durations[name] = reply.duration
+            measured[name].append((1e3 * (t_reply - t0), 1e3 * (tc[0] - t0), dev(b.tcp(cmd)), dev(b.tcp(fb))))
+    for name, what in (("LIN", "LIN 0.5 m"), ("CIRC", "CIRC half circle r = 0.15 m")):
+        reply_ms, first_ms, planned, executed = np.array(measured[name]).T
+        out.append(f"{what} at 0.25 m/s ({durations[name]:.2f} s), {rounds} times: request -> reply median "
+                   f"{np.median(reply_ms):.1f} ms (max {reply_ms.max():.1f}), request -> first command median "
+                   f"{np.median(first_ms):.1f} ms (max {first_ms.max():.1f}); deviation planned "
+                   f"{planned.max() * 1e6:.3f} µm, executed {executed.max() * 1e6:.1f} µm")
     out.append(in_process(b, q0, a, lin_args, circ_args))
     return out
 
@@ -329,14 +334,18 @@ def ptp_optimality(b: Bench) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=10, help="repetitions of the latency measurements")
+    ap.add_argument("--rounds", type=int, default=5, help="repetitions of the LIN and the CIRC")
     ap.add_argument("--lead-ms", type=float, default=None, help="planner lead (default: its own)")
+    ap.add_argument("--early-start-ms", type=float, default=None,
+                    help="the planner's early start (default: its own; 0: acceptance first)")
     args = ap.parse_args()
     for line in collision_cost():
         print(line)
     sp, pp = free_port(), free_port()
     servo = spawn(Service.SERVO, sp)
     extra = ["--connect", f"tcp/127.0.0.1:{sp}"] + (["--lead-ms", str(args.lead_ms)] if args.lead_ms else [])
-    planner = spawn(Service.PLANNER, pp, *extra)
+    early = ["--early-start-ms", str(args.early_start_ms)] if args.early_start_ms is not None else []
+    planner = spawn(Service.PLANNER, pp, *extra, *early)
     try:
         time.sleep(1.0)
         with zenoh.open(zenoh_config("peer", connect=[f"tcp/127.0.0.1:{sp}", f"tcp/127.0.0.1:{pp}"])) as s:
@@ -352,7 +361,7 @@ def main() -> int:
             m, _ = b.plan(OP.goHome)
             b.wait_done(m)
             print(reply_to_motion(b, args.n))
-            for line in cartesian(b):
+            for line in cartesian(b, args.rounds):
                 print(line)
             print(pause_latency(b, args.n))
             print(ptp_optimality(b))

@@ -7,7 +7,10 @@ One process with a child (``schema/planner.py`` is the contract):
 * ``Planner/plan``: a worker thread decodes the ``MotionRequest``, takes the
   start joints from the streamer, has the planning process (``worker.py``)
   plan and check it, queues it and replies ``PlanReply``. Motions are planned
-  one at a time, in order.
+  one at a time, in order. Meanwhile, with nothing queued or moving, the
+  worker plans a LIN / CIRC's head itself and streams it: the early start
+  (``docs/decisions.md``, "First command and acceptance"); the reply still
+  waits for the whole.
 * ``Planner/control``: another worker thread (never waits for planning)
   applies pause / resume / stop / abort to the streamer and replies once any
   braking is queued for sending.
@@ -15,7 +18,8 @@ One process with a child (``schema/planner.py`` is the contract):
   ``Servo/status`` and publishes ``Planner/progress``.
 
 Every thread of this process runs under SCHED_FIFO when allowed (the streamer
-highest); the CPU-heavy planning runs in the child at normal priority.
+highest); the CPU-heavy planning runs in the child at normal priority. A
+head (about 2 ms) is planned here: only while the streamer has nothing to send.
 """
 
 from __future__ import annotations
@@ -48,10 +52,11 @@ from jara_arm.schema.planner import (
 )
 from jara_arm.services.runtime.arguments import non_negative_float, obstacle_argument
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
+from jara_arm.services.runtime.timing import EARLY_START
 from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .collision import DEFAULT_MARGIN
-from .planning import PlanRefused
+from .planning import MotionPlanner, PlanRefused
 from .streamer import DEFAULT_LEAD, DEFAULT_RT_PRIORITY, Streamer
 from .worker import PlanningProcess
 
@@ -66,10 +71,11 @@ GIL_SWITCH_INTERVAL = 0.0005
 class PlannerService:
     """``Planner/plan`` and ``Planner/control`` queryables, the status watch and the streamer."""
 
-    def __init__(self, ctx: ServiceContext, planner: PlanningProcess, lead: float) -> None:
+    def __init__(self, ctx: ServiceContext, planner: PlanningProcess, heads: MotionPlanner, lead: float) -> None:
         session, keys = ctx.session, ctx.keys
         self.model = model = ctx.model
         self.planner = planner
+        self.heads = heads  # the early starts' heads, planned in this process beside the child
         # Every command counts (SyncFIFO): block rather than drop when the link is congested.
         # The blocks are MessagePack built by hand (messages.position_block_payload), fast.
         self._cmd_pub = ctx.enter(Publication(session, keys.pos_block, Encoding.MSGPACK, express=True,
@@ -117,15 +123,34 @@ class PlannerService:
             log.info("motion request refused: %s", exc)
             return self._refused(ReturnCode.VALUE_ERR, str(exc))
         for _ in range(_REPLAN):
+            started = False
+
+            def start_early() -> None:
+                nonlocal started
+                head = self.heads.head(req, start)
+                if head is not None and self.streamer.start_early(head.motion, generation):
+                    started = True
+                    log.info("%s starts early: head planned in %.1f ms, %d samples before acceptance, within "
+                             "%.2f mm of the start", req.op, (time.perf_counter() - t0) * 1e3, len(head.motion.q),
+                             head.reach * 1e3)
+
             try:
                 start, generation = self.streamer.start_point()
                 t0 = time.perf_counter()
                 previous = self.streamer.last_motion() if req.settings.blendDistance > 0.0 else None
-                motion = self.planner.plan(req, start, previous)
+                early = start_early if self.streamer.can_start_early() else None
+                motion = self.planner.plan(req, start, previous, early)
             except PlanRefused as exc:
-                log.info("%s refused (%s): %s", req.op, exc.code.name, exc.comment)
-                return self._refused(exc.code, exc.comment)
-            queued = self.streamer.submit(motion, generation)
+                comment = exc.comment
+                if started:
+                    moved = self.streamer.cancel_early()
+                    comment = f"{comment}; {moved}" if moved else comment
+                log.info("%s refused (%s): %s", req.op, exc.code.name, comment)
+                return self._refused(exc.code, comment)
+            if started:
+                queued = self.streamer.confirm_early(motion, generation)
+            else:
+                queued = self.streamer.submit(motion, generation)
             if queued is not None:
                 motion_id, progress = queued
                 log.info("motion %d %s accepted: %.3f s long, planned in %.0f ms", motion_id, req.op,
@@ -167,6 +192,7 @@ class PlannerProgram(ArmService):
 
     def __init__(self) -> None:
         self._planner: PlanningProcess | None = None
+        self._heads: MotionPlanner | None = None
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -177,19 +203,26 @@ class PlannerProgram(ArmService):
                             help="a fixed box of the world that every motion keeps clear of: centre and half "
                             "extents [m] in the world frame (repeatable; added to the robot model's own "
                             "obstacles; give it the servo's --obstacle boxes)")
+        parser.add_argument("--early-start-ms", type=non_negative_float, default=EARLY_START * 1e3, metavar="MS",
+                            help="how much of a LIN / CIRC from rest may stream while the rest of it is still "
+                            "planned [ms of motion]; a motion refused after it started has moved the arm "
+                            f"along its checked first samples, 0: never (default: {EARLY_START * 1e3:.0f})")
         parser.add_argument("--collision-margin", type=non_negative_float, default=DEFAULT_MARGIN, metavar="M",
                             help="clearance every link keeps from the obstacles [m]; links only must not touch "
                             f"each other (default: {DEFAULT_MARGIN})")
 
     def before_session(self, model: RobotModel, options: argparse.Namespace) -> None:
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
-        self._planner = PlanningProcess(model, logging.getLevelName(logging.getLogger().level),
-                                        model.obstacles + tuple(options.obstacle or ()), options.collision_margin)
+        obstacles = model.obstacles + tuple(options.obstacle or ())
+        self._planner = PlanningProcess(model, logging.getLevelName(logging.getLogger().level), obstacles,
+                                        options.collision_margin)
+        self._heads = MotionPlanner(model, obstacles=obstacles, collision_margin=options.collision_margin,
+                                    early_start=options.early_start_ms * 1e-3)
 
     def start(self, ctx: ServiceContext) -> None:
-        assert self._planner is not None  # before_session() ran
+        assert self._planner is not None and self._heads is not None  # before_session() ran
         lead_ms = ctx.options.lead_ms
-        PlannerService(ctx, self._planner, lead_ms * 1e-3)
+        PlannerService(ctx, self._planner, self._heads, lead_ms * 1e-3)
         m = ctx.model
         ctx.up(f"planner up: arm {ctx.keys.arm}, robot {m.name} ({m.axis_num} axes"
                f"{' + gripper' if m.has_gripper else ''}), lead {lead_ms:.0f} ms")

@@ -67,6 +67,7 @@ from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.operations import MIDDLE
 from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, JointPos
+from jara_arm.services.runtime.timing import EARLY_START
 
 from . import families
 from .blend import UNBLENDED_OPS, Blend, BlendError, JointLimits, cut_points, joint_blend, state_at
@@ -76,6 +77,7 @@ from .families import CartesianKind, CartesianRule, Orientation
 from .paths import CartesianArc, CartesianLine, PathGeometryError
 from .profile import (
     PathMotion,
+    PathProfile,
     ProfileError,
     ProfileLimits,
     cartesian_path_speed,
@@ -107,6 +109,32 @@ LOWEST_SPEED_RATIO = 0.01
 JOINT_SPEED_MARGIN = 0.97
 #: Rounds of slowing down before giving up (each one re-solves IK along the path).
 SLOWDOWN_ROUNDS = 4
+#: Uniform knots solved for a LIN / CIRC's early start (the start and the next): the head's samples.
+HEAD_KNOTS = 2
+
+#: The operations whose motions may start early (``MotionPlanner.head``): the LINs and CIRCs.
+EARLY_OPS = frozenset({"moveLinearCartesianAbs", "moveLinearCartesianRel", "moveCircularCartesianAbs",
+                       "moveCircularCartesianRel"})
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Head:
+    """The checked first samples of a LIN / CIRC still being planned: what may be streamed before acceptance.
+
+    ``motion.q``: the samples that may go out (at most the early-start time's);
+    ``motion.path``: the joints up to the head's end (the path's first knot interval), every sample on the
+    path, within the joint speeds and clear of collisions, so that braking from any sample sent stays on it.
+    The whole motion's samples start with ``motion.q`` bit for bit when its profile is ``motion.profile``
+    (not slowed down): the same computation, and cubic Hermite pieces are local.
+    """
+
+    motion: PlannedMotion
+    #: [m] the control point's largest distance from the start up to where braking from the last sample ends
+    reach: float
+
+
+class _HeadDone(Exception):
+    """Ends :meth:`MotionPlanner.plan` within :meth:`MotionPlanner.head` once the head is checked."""
 
 
 class PlanRefused(JaraArmError):
@@ -147,10 +175,14 @@ class MotionPlanner:
     """Plans motions for one robot model. Not thread-safe: one instance per planning thread."""
 
     def __init__(self, model: RobotModel, kinematics: Kinematics | None = None, *,
-                 obstacles: Sequence[Obstacle] = (), collision_margin: float = DEFAULT_MARGIN) -> None:
+                 obstacles: Sequence[Obstacle] = (), collision_margin: float = DEFAULT_MARGIN,
+                 early_start: float = EARLY_START) -> None:
         """``obstacles``: the world's boxes (the model's own and the ``--obstacle`` ones, in the world frame);
-        ``collision_margin`` [m]: the clearance every link keeps from them (``collision.py``)."""
+        ``collision_margin`` [m]: the clearance every link keeps from them (``collision.py``);
+        ``early_start`` [s]: how much of a LIN / CIRC its head may stream before acceptance (``plan(head=)``)."""
         self.model = model
+        self.early_start = early_start
+        self._head: list[Head] | None = None  # plan() within head(): where _cartesian puts it
         self.kin = kinematics or Kinematics(model)
         self.postures = Postures(self.kin) if model.posture_joints is not None else None
         self.collisions = PathChecker(model, obstacles, collision_margin)
@@ -194,6 +226,23 @@ class MotionPlanner:
             raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
         except (PathGeometryError, ProfileError, KinematicsError) as exc:
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: {exc}") from None
+
+    def head(self, req: MotionRequest, start: Joints) -> Head | None:
+        """A LIN / CIRC's :class:`Head` from ``start``: its first knot interval planned and checked, the rest
+        not (the early start: ``docs/decisions.md``, "First command and acceptance"). None for other motions,
+        with ``early_start`` 0, and wherever the head alone cannot tell (a refusal, a joint too fast, a
+        contact): :meth:`plan` of the whole then decides and says why."""
+        if req.op not in EARLY_OPS or self.early_start <= 0.0:
+            return None
+        found: list[Head] = []
+        self._head = found
+        try:
+            self.plan(req, start, preview=False)
+        except (_HeadDone, PlanRefused):
+            pass
+        finally:
+            self._head = None
+        return found[0] if found else None
 
     def preview(self, q: Joints, settings: MotionSettings) -> NDArray[np.float64]:
         """(K, 3) [m] the control point at up to ``PREVIEW_POINTS`` of the samples ``q``, evenly
@@ -540,16 +589,20 @@ class MotionPlanner:
         for _ in range(SLOWDOWN_ROUNDS):
             profile = move_profile(path.length, ProfileLimits.from_accel_time(speed, s.accelTimeCartesian))
             samples = profile.sample(self.dt)
-            poses = path.sample(samples.s)
             if not checked_box:
-                pts = poses[:, :3, 3]
+                pts = path.positions(samples.s)
                 if rule.planar:  # the points are in the arm frame: the limits are in the robot frame
                     pts = frames.to_robot(pts)
                 self._check_box(s, pts, req.op)
                 checked_box = True
             try:
+                if joints is None and self._head is not None:  # head(): the first knot interval only
+                    joints = self._path_joints(path, start, frames, rule, elbows, lo, hi, HEAD_KNOTS)
+                    self._early_head(req, joints, profile, samples.s, path, start, vmax, frames, rule)
+                    raise _HeadDone
                 if joints is None:
                     joints = self._path_joints(path, start, frames, rule, elbows, lo, hi)
+                poses = path.sample(samples.s)
                 q = np.repeat(start[None, :], len(samples.s), axis=0)  # gripper column kept as it is
                 q[:, :self.n] = joints.joints(samples.s, self._ik_targets(poses, frames, rule))
             except Unreachable as exc:
@@ -574,6 +627,38 @@ class MotionPlanner:
         raise PlanRefused(ReturnCode.VALUE_ERR, f"{req.op}: could not keep the joint speeds within "
                           f"maxSpeedJoint along the path")
 
+    def _early_head(self, req: MotionRequest, joints: PathJoints, profile: PathProfile, s: NDArray[np.float64],
+                    path: CartesianLine | CartesianArc, start: Joints, vmax: Joints, frames: _Frames,
+                    rule: CartesianRule) -> None:
+        """Check the target (IK from the start, contacts) and the samples up to the last knot solved, and keep
+        the :class:`Head` for :meth:`head`; none where that is not enough to say: too short, too fast, a contact,
+        a target IK from the start does not reach."""
+        assert self._head is not None
+        try:  # refusals for the target itself come before any motion: unreachable, in contact
+            end = start.copy()
+            end[:self.n] = joints.end_from_start()
+        except Unreachable:
+            return
+        if self.collisions.check(end[None, :]) is not None:
+            return
+        m = int(np.searchsorted(s, joints.spline.s[-1], side="right"))  # samples on the solved knots
+        poses = path.sample(s[:m])
+        early = min(m - 1, int(round(self.early_start / self.dt)) + 1)
+        if early < 2:
+            return
+        q = np.repeat(start[None, :], m, axis=0)
+        q[:, :self.n] = joints.joints(s[:m], self._ik_targets(poses[:m], frames, rule))
+        if (np.abs(np.diff(q[:, :self.n], axis=0)) / self.dt > vmax).any() or self.collisions.check(q) is not None:
+            return  # the whole plan decides and says why
+        while early >= 2 and profile.stop_at((early - 1) * self.dt).s_end > s[m - 1]:
+            early //= 2  # braking from the last early sample must end on the head
+        if early < 2:
+            return
+        stop = profile.stop_at((early - 1) * self.dt).s_end
+        reach = float(np.max(np.linalg.norm(poses[:m][s[:m] <= stop, :3, 3] - poses[0, :3, 3], axis=1)))
+        self._head.append(Head(PlannedMotion(UNQUEUED, req.op, TableMap.build(s[:m], q), profile,
+                                             q[:early].copy(), self.dt), reach))
+
     def _ik_targets(self, poses: NDArray[np.float64], frames: _Frames,
                     rule: CartesianRule) -> NDArray[np.float64]:
         """Robot-frame path poses (N, 4, 4) as IK must meet them: arm frame, family rule applied."""
@@ -583,8 +668,9 @@ class MotionPlanner:
 
     def _path_joints(self, path: CartesianLine | CartesianArc, start: Joints, frames: _Frames,
                      rule: CartesianRule, elbows: tuple[float | None, float | None], lo: Joints,
-                     hi: Joints) -> PathJoints:
-        """The joint path along ``path`` (robot frame) from ``start``; raises Unreachable."""
+                     hi: Joints, first_knots: int | None = None) -> PathJoints:
+        """The joint path along ``path`` (robot frame) from ``start``, ``first_knots`` of its knots solved
+        (default all); raises Unreachable."""
 
         def targets(s: NDArray[np.float64]) -> NDArray[np.float64]:
             return self._ik_targets(path.sample(s), frames, rule)
@@ -594,7 +680,7 @@ class MotionPlanner:
         intervals = math.ceil(max(path.translation_length / KNOT_TRANSLATION,
                                   path.rotation_angle / KNOT_ROTATION, turn / KNOT_ELBOW, 1.0))
         return PathJoints(self.kin, self._fk, targets, path.length, start[:self.n], frames.tool, rule.mask,
-                          elbows, lo, hi, self._tol, intervals)
+                          elbows, lo, hi, self._tol, intervals, first_knots)
 
     def _gripper(self, req: MotionRequest, start: Joints, ratio: int) -> PlannedMotion:
         lim = self.model.gripper_limits

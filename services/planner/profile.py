@@ -61,6 +61,7 @@ __all__ = [
     "ProfileLimits",
     "ProfileSamples",
     "cartesian_path_speed",
+    "continue_profile",
     "joint_path_speed",
     "move_profile",
     "plan_cartesian",
@@ -289,6 +290,22 @@ def move_profile(length: float, limits: ProfileLimits, s_start: float = 0.0) -> 
 def resume_profile(length: float, s: float, limits: ProfileLimits) -> PathProfile:
     """From rest at ``s`` to the end of the path (after a pause); same as :func:`move_profile`."""
     return move_profile(length, limits, s)
+
+
+def continue_profile(length: float, s: float, sd: float, sdd: float, limits: ProfileLimits) -> PathProfile:
+    """From the moving state ``(s, sd, sdd)`` on to rest at the end of the path within ``limits``, time-optimal:
+    an early start handing over to its whole motion slowed down (a state beyond the new limits is first
+    braked into them, Ruckig's brake phase)."""
+    length = _check_length(length)
+    s, sd, sdd = float(s), float(sd), float(sdd)
+    if not (math.isfinite(s) and math.isfinite(sd) and math.isfinite(sdd)) or not 0.0 <= s <= length or sd < 0.0:
+        raise ProfileError(f"cannot continue from s={s!r}, sd={sd!r}, sdd={sdd!r} on a path of length {length}")
+    if s == length:
+        return _at_rest(length, limits, length)
+    inp = _input(limits, s, sd, sdd)
+    inp.target_position = [length]
+    traj = _calculate(inp)
+    return PathProfile(length, limits, s, sd, sdd, length, float(traj.duration), traj)
 
 
 def stop_profile(length: float, s: float, sd: float, sdd: float, limits: ProfileLimits) -> PathProfile:

@@ -207,6 +207,12 @@ class HermiteSpline:
         out[exact] = self.q[k[exact]]
         return out
 
+    def extend(self, s: Array, q: Array, dq: Array) -> None:
+        """Append knots beyond the last one."""
+        self.s = np.concatenate([self.s, s])
+        self.q = np.concatenate([self.q, q])
+        self.dq = np.concatenate([self.dq, dq])
+
     def insert(self, s: float, q: Array, dq: Array) -> None:
         k = int(np.searchsorted(self.s, s))
         self.s = np.insert(self.s, k, s)
@@ -237,12 +243,13 @@ class PathJoints:
     parameters ``s`` in ``[0, length]``; ``start``: joints at ``s = 0``;
     ``elbows``: arm angle at the start and the end (moved linearly in ``s``),
     or ``(None, None)``; ``lo``/``hi``: joint limits; ``intervals``: initial
-    number of knot intervals (uniform in ``s``). Raises :class:`Unreachable`.
+    number of knot intervals (uniform in ``s``); ``first_knots``: solve only that many of the knots now
+    (:meth:`solve_knots` the rest). Raises :class:`Unreachable`.
     """
 
     def __init__(self, kin: Kinematics, fk: BatchFk, targets: Callable[[Array], Array], length: float,
                  start: Array, tool: pin.SE3 | None, mask: Mask, elbows: tuple[float | None, float | None],
-                 lo: Array, hi: Array, tol: Tolerances, intervals: int) -> None:
+                 lo: Array, hi: Array, tol: Tolerances, intervals: int, first_knots: int | None = None) -> None:
         self.kin, self.fk, self.targets, self.length = kin, fk, targets, length
         self.tool, self.mask, self.tol = tool, mask, tol
         self.e0, self.e1 = elbows
@@ -251,18 +258,46 @@ class PathJoints:
         self._mr = np.array(mask[3:], dtype=float)
         self._rows = np.flatnonzero(np.array(mask))
         self.ik_solves = 0
-        knots = np.linspace(0.0, length, max(1, intervals) + 1)
-        T, w = self._stencils(knots)
-        q, dq = [start.copy()], [self._tangent(start, T[0], w[0])]
-        for k in range(1, len(knots)):  # warm start: Taylor prediction from the previous knot
-            h = knots[k] - knots[k - 1]
-            seed = q[-1] + h * dq[-1]
-            if k > 1:  # second order, the curvature from the last two slopes: IK then needs one step
-                seed += (0.5 * h * h / (knots[k - 1] - knots[k - 2])) * (dq[-1] - dq[-2])
-            qk = self._solve(knots[k], T[k, 0], seed)
-            q.append(qk)
-            dq.append(self._tangent(qk, T[k], w[k]))
-        self.spline = HermiteSpline(knots, np.array(q), np.array(dq))
+        self._start = start.copy()
+        self._knots = np.linspace(0.0, length, max(1, intervals) + 1)
+        self._q: list[Array] = []  # the uniform knots solved so far, and their slopes
+        self._dq: list[Array] = []
+        self.spline = HermiteSpline(np.zeros(0), np.zeros((0, len(start))), np.zeros((0, len(start))))
+        self.solve_knots(len(self._knots) if first_knots is None else first_knots)
+
+    @property
+    def solved(self) -> bool:
+        """Every knot is solved: the spline spans the whole path."""
+        return len(self._q) == len(self._knots)
+
+    def solve_knots(self, count: int | None = None) -> None:
+        """Solve the first ``count`` uniform knots (all by default) that are not solved yet; the spline then
+        runs to the last of them. Cubic Hermite pieces are local: the samples before an already solved knot
+        do not change, which lets a motion's first samples go out while the rest is solved."""
+        done, count = len(self._q), len(self._knots) if count is None else min(count, len(self._knots))
+        if count <= done:
+            return
+        ks = self._knots[done:count]
+        T, w = self._stencils(ks)
+        for j in range(len(ks)):  # warm start: Taylor prediction from the previous knot
+            k = done + j
+            if k == 0:
+                qk = self._start
+            else:
+                h = self._knots[k] - self._knots[k - 1]
+                seed = self._q[-1] + h * self._dq[-1]
+                if k > 1:  # second order, the curvature from the last two slopes: IK then needs one step
+                    seed += (0.5 * h * h / (self._knots[k - 1] - self._knots[k - 2])) * (self._dq[-1] - self._dq[-2])
+                qk = self._solve(float(ks[j]), T[j, 0], seed)
+            self._q.append(qk)
+            self._dq.append(self._tangent(qk, T[j], w[j]))
+        self.spline.extend(ks, np.array(self._q[done:]), np.array(self._dq[done:]))
+
+    def end_from_start(self) -> Array:
+        """Joints at the path's end by IK seeded at the start, not along the knots: whether the target is
+        reachable at all, before the knots between are solved (they may end in another solution).
+        Raises :class:`Unreachable`."""
+        return self._solve(self.length, self.targets(np.array([self.length]))[0], self._start)
 
     def _elbow_at(self, s: float | Array) -> float | Array | None:
         return None if self.e0 is None else self.e0 + (s / self.length) * (self.e1 - self.e0)

@@ -24,6 +24,15 @@ effect within ``lead`` plus one cycle of its reply.
   and the next one then runs its exact-stop samples.
 * ``abort`` (and the servo going off, raising an alarm, or running dry during a
   motion): nothing more is sent; everything is discarded.
+* Early start (``start_early``): with nothing queued, sent or paused, the
+  checked first samples of a LIN / CIRC still being planned (its head,
+  ``planning.Head``) go out at once. ``confirm_early`` hands the accepted
+  whole over (the same samples on; slowed down: a continuation from the state
+  sent); ``cancel_early`` (refused) brakes on the head and discards it. A head
+  that runs out first brakes on itself and holds until one of the two. A
+  pause brakes it as any motion; a stop or abort discards it (the planner
+  then plans the motion again from where the arm stopped, as for any motion
+  being planned when the queue stops).
 
 Control calls compute the braking profile and install it before they return,
 so their reply means "the deceleration is queued for sending".
@@ -55,9 +64,9 @@ from jara_arm.services.runtime.timing import SAME_HOST, STREAM_BLOCK, STREAM_LEA
 
 from .blend import Blend, JointTrajectory, joint_move, joint_stop
 from .planning import PlanRefused
-from .profile import PathProfile, resume_profile
+from .profile import PathProfile, continue_profile, resume_profile
 from .servo_fifo import FifoEstimate
-from .trajectory import Joints, PlannedMotion
+from .trajectory import UNQUEUED, Joints, PlannedMotion
 
 log = logging.getLogger(__name__)
 
@@ -122,8 +131,15 @@ class _Segment:
         if self.joint is not None and self.blend is not None:
             back = joint_move(self.q[-1], self.blend.trajectory.q[-1], self.blend.limits, self.joint.dt)
             return _Segment(self.motion, self.profile, back.q, _Kind.RUN, joint=back, blend=self.blend)
-        profile = self.profile.resume()
-        return _Segment(self.motion, profile, self.motion.joints_along(profile), _Kind.RUN)
+        m = self.motion  # its own limits: an early start's head may have braked with others (slowed down since)
+        profile = resume_profile(m.profile.length, self.profile.s_end, m.profile.limits)
+        return _Segment(m, profile, m.joints_along(profile), _Kind.RUN)
+
+    def continued(self, motion: PlannedMotion) -> _Segment:
+        """``motion`` (on this segment's path, other limits) on from the state of the last sample sent."""
+        s, sd, sdd = self.profile.at(self.last_sent_time)
+        profile = continue_profile(motion.profile.length, s, sd, sdd, motion.profile.limits)
+        return _Segment(motion, profile, motion.joints_along(profile), _Kind.RUN)
 
     def path_after(self) -> _Segment:
         """After the blend (or the way back onto the path): the motion's path from the rejoin point on."""
@@ -158,6 +174,7 @@ class Streamer:
         self._queue: collections.deque[PlannedMotion] = collections.deque()
         self._active: _Segment | None = None
         self._held: _Segment | None = None  # paused at rest mid-path
+        self._early: PlannedMotion | None = None  # the head streaming before its motion is accepted
         self._inflight: collections.deque[tuple[int, float]] = collections.deque()  # (id, due [s])
         self._paused = False
         self._tail: Joints | None = None  # where the last queued motion (or braking) ends
@@ -245,6 +262,83 @@ class Streamer:
         self._wake.set()
         return motion.motion, progress
 
+    def can_start_early(self) -> bool:
+        """Nothing queued, sent or paused: a motion planned now may start before it is accepted."""
+        with self._lock:
+            return self._early is None and not self._paused and self._idle(time.time(), SETTLE)
+
+    def start_early(self, head: PlannedMotion, generation: int) -> bool:
+        """Stream ``head`` (``planning.Head.motion``) if :meth:`can_start_early` still holds, the queue's end
+        has not moved and the servo holds the arm at its start; :meth:`confirm_early` or :meth:`cancel_early`
+        must follow a True."""
+        with self._lock:
+            st = self._status
+            if (generation != self._generation or self._early is not None or self._paused
+                    or not self._idle(time.time(), SETTLE) or st is None or len(st.target) != self.dof
+                    or float(np.max(np.abs(np.array(st.target) - head.start))) > START_TOLERANCE):
+                return False
+            self._early = head
+            self._active = _Segment(head, head.profile, head.q, _Kind.RUN)
+            self._tail = None
+        self._wake.set()
+        return True
+
+    def confirm_early(self, motion: PlannedMotion, generation: int) -> tuple[int, PlannerProgress] | None:
+        """The motion whose head :meth:`start_early` streams is accepted: as :meth:`submit`, and it goes on
+        from wherever its head is (None: a stop or abort discarded the head; plan it again)."""
+        with self._lock:
+            head, self._early = self._early, None
+            if head is None or generation != self._generation:
+                return None
+            self._last_id += 1
+            motion = dataclasses.replace(motion, motion=self._last_id)
+            same = (motion.profile.limits == head.profile.limits and len(motion.q) >= len(head.q)
+                    and np.array_equal(motion.q[:len(head.q)], head.q))
+            seg = self._active if self._active is not None and self._active.motion is head else None
+            if seg is not None and seg.kind is _Kind.RUN:
+                if same:  # the whole motion's samples begin with the head's, bit for bit
+                    seg.motion, seg.q, seg.nominal = motion, motion.q, True
+                else:  # slowed down: on from the state sent, within the slower limits
+                    self._active = seg.continued(motion)
+            elif seg is not None:  # braking on the head (it ran out, or a pause)
+                seg.motion, seg.resume_after = motion, not self._paused
+            elif self._held is not None and self._held.motion is head:
+                self._held.motion = motion
+                if not self._paused:
+                    self._active, self._held = self._held.resumed(), None
+            else:  # pragma: no cover - a head is active or held until confirmed, cancelled or discarded
+                raise AssertionError("the early start's head is neither streaming nor held")
+            self._tail = motion.end.copy()
+            log.debug("motion %d accepted %s", motion.motion,
+                      "on its head" if same else "slowed down: continuing from its head")
+            progress = self._progress(time.time())
+        self._wake.set()
+        return motion.motion, progress
+
+    def cancel_early(self) -> str:
+        """The motion whose head :meth:`start_early` streams is refused: the head brakes (on itself) and is
+        discarded. Returns what the arm did, for the refusal's comment ("" if the head is gone already)."""
+        with self._lock:
+            head, self._early = self._early, None
+            if head is None:
+                return ""
+            seg = self._active if self._active is not None and self._active.motion is head else None
+            if seg is not None and seg.kind is _Kind.RUN:
+                self._active = seg = seg.brake(_Kind.STOP)
+            elif seg is not None:
+                seg.kind, seg.resume_after = _Kind.STOP, False
+            held = self._held is not None and self._held.motion is head
+            if held:
+                seg, self._held = self._held, None
+            assert seg is not None
+            self._tail = seg.q[-1].copy()
+            moved = float(np.max(np.abs(seg.q[-1] - head.start)))
+            log.info("the early start is refused: the arm %s %.3g rad / m from the start",
+                     "stopped" if held else "stops", moved)
+        self._wake.set()
+        return (f"it had started early and {'stopped' if held else 'stops'} on its checked first samples, "
+                f"joints at most {moved:.2g} rad from the start")
+
     def _blendable(self, blend: Blend) -> bool:
         """Whether ``blend`` can still leave the motion it starts from (lock held)."""
         if self._queue:
@@ -307,6 +401,9 @@ class Streamer:
             seg.resume_after = True
             log.info("resume: motion %d continues once its deceleration ends", seg.motion.motion)
             return "OK: resuming once the deceleration ends"
+        if self._held is not None and self._held.motion is self._early:
+            log.info("resume: the early start goes on once its motion is planned")
+            return "OK: resumed"
         if self._held is not None:
             held, self._held = self._held, None
             self._active = held.resumed()
@@ -332,8 +429,10 @@ class Streamer:
         self._queue.clear()
         self._held = None
         self._paused = False
+        self._early = None  # the motion being planned is planned again from where the arm stops
         self._generation += 1
         self._tail = seg.q[-1].copy() if seg is not None else self._last_sent
+        discarded = [i for i in discarded if i != UNQUEUED]
         if discarded:
             self._last_discarded = max(self._last_discarded, max(discarded))
         duration = seg.duration if seg is not None else 0.0
@@ -348,9 +447,10 @@ class Streamer:
         if self._active is not None and self._active.kind is not _Kind.STOP:
             discarded.append(self._active.motion.motion)
         busy = bool(discarded) or self._active is not None
+        discarded = [i for i in discarded if i != UNQUEUED]
         self._queue.clear()
         self._inflight.clear()
-        self._active = self._held = None
+        self._active = self._held = self._early = None
         self._paused = False
         self._tail = self._last_sent = None
         self._generation += 1
@@ -371,13 +471,13 @@ class Streamer:
         """The progress now, numbered: ``seq`` grows when anything but the time changed (lock held)."""
         ids = [i for i, _ in self._inflight]
         seg = self._active
-        if seg is not None and seg.kind is not _Kind.STOP:
+        if seg is not None and seg.kind is not _Kind.STOP and seg.motion is not self._early:
             ids.append(seg.motion.motion)
-        if self._held is not None:
+        if self._held is not None and self._held.motion is not self._early:
             ids.append(self._held.motion.motion)
         ids += [m.motion for m in self._queue]
         moving = bool(self._inflight) or (seg is not None and seg.kind is not _Kind.STOP)
-        running = ids[0] if moving else 0  # 0 while paused at rest, stopping or about to start
+        running = ids[0] if moving and ids else 0  # 0 while paused at rest, stopping, about to start or early
         streaming = seg is not None or now < self._busy_until
         last = self._snapshot
         seq = last.seq if last is not None else 0
@@ -494,6 +594,10 @@ class Streamer:
                 seg.k += 1
                 self._last_sent = q
                 return q
+            if seg.kind is _Kind.RUN and seg.motion is self._early:  # not accepted yet: brake on the head
+                log.warning("the early start's head ran out before its motion was planned: braking on it")
+                self._active = seg.brake(_Kind.PAUSE)
+                continue
             self._segment_done(seg, max(now, self._busy_until))
 
     def _starts_at_servo(self, motion: PlannedMotion) -> bool:
@@ -519,11 +623,13 @@ class Streamer:
         elif seg.kind is _Kind.PAUSE:
             if seg.joint is None and seg.profile.finished_at_end:  # it could only stop at the end: the motion is done
                 self._inflight.append((seg.motion.motion, due))
-            elif seg.resume_after:
+            elif seg.resume_after and seg.motion is not self._early:
                 self._active = seg.resumed()
             else:
                 self._held = seg
-                if seg.joint is not None:
+                if seg.motion is self._early:
+                    log.info("the early start holds on its head until its motion is planned")
+                elif seg.joint is not None:
                     log.info("paused: motion %d holds in its blend", seg.motion.motion)
                 else:
                     log.info("paused: motion %d holds at %.1f %% of its path", seg.motion.motion,

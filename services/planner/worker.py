@@ -25,7 +25,7 @@ import multiprocessing.connection
 import os
 import signal
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -103,13 +103,20 @@ class PlanningProcess:
             raise RuntimeError(f"the planning process did not start within {_START_TIMEOUT:.0f} s")
         self._conn.recv()
 
-    def plan(self, req: MotionRequest, start: Joints, previous: PlannedMotion | None = None) -> PlannedMotion:
+    def plan(self, req: MotionRequest, start: Joints, previous: PlannedMotion | None = None,
+             meanwhile: Callable[[], None] | None = None) -> PlannedMotion:
         """The planned motion (``previous``: ``MotionPlanner.plan``'s), its ``preview`` empty (:meth:`preview`
-        has it); raises PlanRefused (also if the child died: it is restarted)."""
+        has it); raises PlanRefused (also if the child died: it is restarted). ``meanwhile`` runs in this
+        thread while the child plans (the early start: the motion's head)."""
         with self._lock:
             try:
                 self._take_preview()  # a preview nobody asked for (the motion was not queued)
                 self._conn.send((req, start, previous))
+                if meanwhile is not None:
+                    try:
+                        meanwhile()
+                    except Exception:  # the motion then starts once planned
+                        log.exception("while %s was planned", req.op)
                 answer = self._conn.recv()
                 self._preview_pending = answer[0] == "ok"
             except (EOFError, OSError, BrokenPipeError):

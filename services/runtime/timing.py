@@ -38,6 +38,11 @@ STREAM_LEAD: Final = 0.016
 #: message [s]: the FIFO then holds between 12 and 16 ms, and the planner, the router and the
 #: servo handle 250 messages a second instead of 1000.
 STREAM_BLOCK: Final = 0.004
+#: A LIN / CIRC from rest may stream this much of its motion [s] before the whole of it is
+#: planned and checked (the early start): its first command goes out after its first knots, not
+#: all of them. 30 ms covers the rest's planning on this machine (10-15 ms) twice; a jerk-limited
+#: start covers well under 0.1 mm in it, all that a motion refused late can have moved.
+EARLY_START: Final = 0.03
 #: Servo/status (measured speeds, efforts, joints) every this many cycles [cycles]: the
 #: alarm monitor's overload (3 samples) and overspeed (2 samples) detectors count these.
 STATUS_EVERY: Final = 10
