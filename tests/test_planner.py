@@ -260,10 +260,10 @@ class Rig:
         return self.kin.control_point(np.asarray(q)[:self.n]).homogeneous
 
 
-def start_rig(robot_name: str) -> Iterator[Rig]:
+def start_rig(robot_name: str, servo_args: tuple[str, ...] = (), planner_args: tuple[str, ...] = ()) -> Iterator[Rig]:
     sp, pp = free_port(), free_port()
-    servo = Proc(service_argv(Service.SERVO, sp, robot=robot_name))
-    planner = Proc(service_argv(Service.PLANNER, pp, "arm0", robot_name, "--connect", endpoint(sp)))
+    servo = Proc(service_argv(Service.SERVO, sp, "arm0", robot_name, *servo_args))
+    planner = Proc(service_argv(Service.PLANNER, pp, "arm0", robot_name, "--connect", endpoint(sp), *planner_args))
     try:
         deadline = time.monotonic() + 30.0
         while True:

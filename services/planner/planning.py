@@ -655,7 +655,8 @@ class MotionPlanner:
         if early < 2:
             return
         stop = profile.stop_at((early - 1) * self.dt).s_end
-        reach = float(np.max(np.linalg.norm(poses[:m][s[:m] <= stop, :3, 3] - poses[0, :3, 3], axis=1)))
+        points = path.positions(np.append(s[:m][s[:m] < stop], stop))
+        reach = float(np.max(np.linalg.norm(points - points[0], axis=1)))
         self._head.append(Head(PlannedMotion(UNQUEUED, req.op, TableMap.build(s[:m], q), profile,
                                              q[:early].copy(), self.dt), reach))
 

@@ -1,0 +1,294 @@
+"""The early start (issue 15, part 5): a LIN / CIRC from rest streams its checked head while the rest is planned.
+
+In-process: ``MotionPlanner.head`` (what it checks, when there is none, its samples are the whole motion's
+first ones bit for bit) and ``Streamer`` through every way a head can end: accepted while it streams, after
+it ran out and held, slowed down, refused, paused, stopped. Live (``test_live_*``, a servo and a planner
+process): the first command goes out before the reply, and a LIN refused for a box in the middle of its path
+stops within the head's reach, at rest, with no alarm.
+
+``docs/decisions.md`` ("First command and acceptance") gives the decision.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from jara_arm.robots import Obstacle, robot
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.messages import ServoStatus
+from jara_arm.schema.operations import OP
+from jara_arm.schema.planner import ControlAction, MotionRequest
+from jara_arm.schema.types import Time
+from jara_arm.services.planner.planning import EARLY_OPS, MotionPlanner, PlanRefused
+from jara_arm.services.planner.streamer import Streamer
+from jara_arm.services.planner.trajectory import PlannedMotion
+
+from .support import car, motion_settings
+from .test_planner import Rig, start_rig
+
+pytestmark = pytest.mark.timeout(120)
+IIWA = robot("iiwa")
+DT = IIWA.cmd_cycle
+Q0 = np.array(IIWA.ready_pose)
+LIN_Y = 0.4  # [m] the LIN of most tests: from the ready pose along +y
+REACH = 2e-3  # [m] the head's reach stays below this (1.31 mm at the settings of these tests)
+
+
+def _pose(planner: MotionPlanner, q: np.ndarray, dp: tuple[float, float, float]) -> np.ndarray:
+    T = planner.kin.control_point(q[:planner.n]).homogeneous.copy()
+    T[:3, 3] += dp
+    return T
+
+
+def _lin(planner: MotionPlanner, q: np.ndarray, dp: tuple[float, float, float], **settings: object) -> MotionRequest:
+    return MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(_pose(planner, q, dp))},
+                         motion_settings(planner.model, **settings))
+
+
+def _circ(planner: MotionPlanner, q: np.ndarray, r: float) -> MotionRequest:
+    """A half circle of radius ``r`` [m] in the horizontal plane, from the pose at ``q``."""
+    return MotionRequest(OP.moveCircularCartesianAbs, {"carPointR": car(_pose(planner, q, (r, r, 0.0))),
+                                                       "carPointT": car(_pose(planner, q, (0.0, 2 * r, 0.0)))},
+                         motion_settings(planner.model))
+
+
+@pytest.fixture(scope="module")
+def planner() -> MotionPlanner:
+    return MotionPlanner(IIWA)
+
+
+# ---------------------------------------------------------------------------------------------- the head
+
+
+@pytest.mark.parametrize("name", ["iiwa", "panda"])
+def test_the_whole_motion_begins_with_the_head_bit_for_bit(name):
+    """Seeded LINs in random directions and CIRCs: every accepted one had a head, its samples are the whole
+    motion's first ones exactly, and braking from its last sample ends on the checked part of the path."""
+    model = robot(name)
+    pl = MotionPlanner(model)
+    q0 = np.array(list(model.ready_pose) + ([model.gripper_limits.upper] if model.has_gripper else []))
+    rng = np.random.default_rng(15)
+    checked = 0
+    for k in range(8):
+        if k % 2:
+            req = _circ(pl, q0, float(rng.uniform(0.05, 0.12)))
+        else:
+            d = rng.normal(size=3)
+            req = _lin(pl, q0, tuple(float(x) for x in d / np.linalg.norm(d) * rng.uniform(0.05, 0.25)))
+        try:
+            whole = pl.plan(req, q0)
+        except PlanRefused:
+            continue  # out of reach: the head may exist or not, the whole decides
+        head = pl.head(req, q0)
+        assert head is not None, req
+        q = head.motion.q
+        assert len(q) == round(pl.early_start / DT) + 1 and len(whole.q) > len(q)
+        np.testing.assert_array_equal(whole.q[:len(q)], q)
+        stop = head.motion.profile.stop_at((len(q) - 1) * DT)
+        assert stop.s_end <= head.motion.path.s[-1]  # type: ignore[attr-defined]
+        assert 0.0 < head.reach < REACH, head.reach
+        checked += 1
+    assert checked >= 6, checked
+
+
+def test_no_head_where_the_start_cannot_tell(planner):
+    """No early start for a PTP, with the early start off, for an unreachable target or one in a box:
+    those refusals move nothing."""
+    assert planner.head(_lin(planner, Q0, (0.0, LIN_Y, 0.0)), Q0) is not None
+    ptp = MotionRequest(OP.movePTPJointAbs, {"jointPoints": tuple(Q0 + 0.1)}, motion_settings(IIWA))
+    assert OP.movePTPJointAbs not in EARLY_OPS and planner.head(ptp, Q0) is None
+    off = MotionPlanner(IIWA, early_start=0.0)
+    assert off.head(_lin(off, Q0, (0.0, LIN_Y, 0.0)), Q0) is None
+    too_high = _lin(planner, Q0, (0.0, 0.0, 0.8))
+    assert planner.head(too_high, Q0) is None
+    with pytest.raises(PlanRefused, match="unreachable"):
+        planner.plan(too_high, Q0)
+    target = _pose(planner, Q0, (0.0, LIN_Y, 0.0))[:3, 3]
+    boxed = MotionPlanner(IIWA, obstacles=(Obstacle(tuple(target), (0.03, 0.03, 0.03)),))
+    assert boxed.head(_lin(boxed, Q0, (0.0, LIN_Y, 0.0)), Q0) is None
+
+
+# ---------------------------------------------------------------------------------------------- the streamer
+
+
+def _status(target: np.ndarray) -> ServoStatus:
+    return ServoStatus(Time.from_seconds(time.time()), True, False, False, 0, 0, 0, 0, (0.0,) * IIWA.dof,
+                       (0.0,) * IIWA.dof, tuple(target.tolist()))
+
+
+@dataclasses.dataclass
+class _Started:
+    streamer: Streamer
+    head: PlannedMotion
+    whole: PlannedMotion
+    generation: int
+    reach: float
+
+
+def _started(planner: MotionPlanner, req: MotionRequest) -> _Started:
+    """A streamer at rest at the start, the head of ``req`` started early, and the whole motion."""
+    st = Streamer(IIWA.dof, DT, lambda _b: None, lambda _p: None, lambda: _status(Q0))
+    start, generation = st.start_point()
+    np.testing.assert_array_equal(start, Q0)
+    assert st.can_start_early()
+    head = planner.head(req, start)
+    assert head is not None and st.start_early(head.motion, generation)
+    assert not st.can_start_early()  # one at a time
+    return _Started(st, head.motion, planner.plan(req, start), generation, head.reach)
+
+
+def _send(st: Streamer, count: int | None = None) -> list[np.ndarray]:
+    out: list[np.ndarray] = []
+    while count is None or len(out) < count:
+        q = st._next_sample(0.0)
+        if q is None:
+            break
+        out.append(q.copy())
+    return out
+
+
+def _smooth(q: np.ndarray, planner: MotionPlanner) -> None:
+    """No joint speed step beyond what the path's own acceleration gives in a few periods (no jolt)."""
+    v = np.diff(q[:, :planner.n], axis=0) / DT
+    assert np.abs(np.diff(v, axis=0)).max() < 0.01, np.abs(np.diff(v, axis=0)).max()
+
+
+def test_accepted_while_streaming_the_stream_is_the_whole_motion(planner):
+    s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
+    sent = _send(s.streamer, 10)
+    motion, progress = s.streamer.confirm_early(s.whole, s.generation)
+    assert motion == 1 and progress.queued == (1,)
+    sent += _send(s.streamer)
+    np.testing.assert_array_equal(np.array(sent), s.whole.q[1:])  # exactly what acceptance first sends
+
+
+def test_a_head_that_runs_out_brakes_holds_and_goes_on_once_accepted(planner):
+    s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
+    sent = _send(s.streamer)  # the head, then its braking: nothing more until accepted
+    assert len(sent) > len(s.head.q) and _send(s.streamer) == []
+    held = sent[-1]
+    np.testing.assert_allclose(sent[-1], sent[-2], atol=1e-6)  # at rest
+    assert np.linalg.norm(planner.kin.control_point(held[:planner.n]).translation
+                          - planner.kin.control_point(Q0[:planner.n]).translation) <= s.reach + 1e-9
+    assert s.streamer.progress().queued == ()  # not accepted: no id yet
+    motion, _ = s.streamer.confirm_early(s.whole, s.generation)
+    sent += _send(s.streamer)
+    q = np.vstack([Q0[None, :], sent])
+    np.testing.assert_allclose(q[-1], s.whole.end, atol=1e-12)
+    _smooth(q, planner)
+
+
+def test_refused_after_the_start_it_brakes_on_the_head_and_nothing_is_queued(planner):
+    s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
+    sent = _send(s.streamer, 20)
+    comment = s.streamer.cancel_early()
+    assert "started early" in comment and "stops" in comment, comment
+    sent += _send(s.streamer)
+    q = np.vstack([Q0[None, :], sent])
+    np.testing.assert_allclose(q[-1], q[-2], atol=1e-6)
+    _smooth(q, planner)
+    p0 = planner.kin.control_point(Q0[:planner.n]).translation
+    moved = max(np.linalg.norm(planner.kin.control_point(x[:planner.n]).translation - p0) for x in q)
+    assert moved <= s.reach + 1e-9, (moved, s.reach)
+    progress = s.streamer.progress()
+    assert progress.queued == () and progress.lastDiscarded == 0 and progress.running == 0
+    assert s.streamer.confirm_early(s.whole, s.generation) is None  # nothing left to accept
+
+
+def test_slowed_down_it_continues_from_the_state_sent_without_a_stop(planner):
+    req = _lin(planner, Q0, (0.0, LIN_Y, 0.0))
+    s = _started(planner, req)
+    slower = planner.plan(dataclasses.replace(req, settings=dataclasses.replace(req.settings,
+                                                                                spdRatioCartesian=40)), Q0)
+    assert slower.profile.limits != s.head.profile.limits
+    sent = _send(s.streamer, 25)
+    s.streamer.confirm_early(slower, s.generation)
+    sent += _send(s.streamer)
+    q = np.vstack([Q0[None, :], sent])
+    np.testing.assert_allclose(q[-1], slower.end, atol=1e-12)
+    _smooth(q, planner)
+    speed = np.linalg.norm(np.diff(q[:, :planner.n], axis=0), axis=1)
+    assert speed[25:-50].min() > 0.0  # never stopped on the way
+
+
+def test_a_pause_during_the_head_holds_the_accepted_motion_until_resume(planner):
+    s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
+    sent = _send(s.streamer, 20)
+    assert s.streamer.control(ControlAction.PAUSE)[1].startswith("OK: pausing")
+    sent += _send(s.streamer)
+    motion, progress = s.streamer.confirm_early(s.whole, s.generation)
+    assert progress.paused and progress.queued == (motion,) and _send(s.streamer) == []
+    s.streamer.control(ControlAction.RESUME)
+    sent += _send(s.streamer)
+    q = np.vstack([Q0[None, :], sent])
+    np.testing.assert_allclose(q[-1], s.whole.end, atol=1e-12)
+    _smooth(q, planner)
+
+
+def test_a_stop_during_the_head_discards_it_and_the_motion_is_planned_again(planner):
+    s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
+    _send(s.streamer, 20)
+    s.streamer.control(ControlAction.STOP)
+    assert _send(s.streamer)  # the braking
+    assert s.streamer.confirm_early(s.whole, s.generation) is None  # the generation moved: plan again
+
+
+# ---------------------------------------------------------------------------------------------- live
+
+
+@pytest.fixture(scope="module")
+def boxed_rig() -> Iterator[Rig]:
+    """A servo and a planner process with a box across the middle of the LIN (+y from the ready pose)."""
+    free = MotionPlanner(IIWA)
+    a = free.kin.control_point(Q0).translation
+    box = Obstacle(tuple(a + (0.0, LIN_Y / 2, 0.0)), (0.02, 0.02, 0.02)).argument()
+    yield from start_rig("iiwa", ("--obstacle", box), ("--obstacle", box))
+
+
+def test_live_the_first_command_goes_out_before_the_reply(boxed_rig: Rig):
+    """A LIN from rest clear of the box (-y): its first commands arrive before its reply; it arrives, straight."""
+    rig = boxed_rig
+    rig.reset()
+    a = rig.tcp(rig.pos())
+    b = a.copy()
+    b[1, 3] -= 0.15
+    t0 = time.time()
+    reply = rig.ok(OP.moveLinearCartesianAbs, {"carPoint": car(b)})
+    t_reply = time.time()
+    rig.wait_idle()
+    rec = rig.drain()
+    assert len(rec.cmd) and rec.cmd_t[0] < t_reply, (rec.cmd_t[0] - t0, t_reply - t0)
+    reached = rig.tcp(rig.pos())
+    assert np.abs(reached[:3, 3] - b[:3, 3]).max() < 1e-4, reached
+    d = b[:3, 3] - a[:3, 3]
+    rel = rig.points(rec.cmd) - a[:3, 3]
+    off = np.linalg.norm(rel - np.outer(rel @ d / (d @ d), d), axis=1)
+    assert off.max() < 1e-6, off.max()
+    assert reply.duration > 0.5
+
+
+def test_live_a_box_mid_path_refuses_the_lin_and_it_stops_within_the_head(boxed_rig: Rig):
+    rig = boxed_rig
+    rig.reset()
+    q0 = rig.pos()
+    p0 = rig.tcp(q0)[:3, 3]
+    b = rig.tcp(q0)
+    b[1, 3] += LIN_Y
+    reply = rig.plan(OP.moveLinearCartesianAbs, {"carPoint": car(b)})
+    assert reply.id == ReturnCode.VALUE_ERR and "obstacle 1" in reply.comment, reply
+    assert "% of the path" in reply.comment, reply
+    progress = rig.wait_idle()
+    assert progress.queued == () and progress.running == 0
+    rec = rig.drain()
+    if len(rec.cmd):  # it had started early (the usual case): braked on the head
+        assert "started early" in reply.comment, reply
+        moved = np.linalg.norm(rig.points(rec.fb) - p0, axis=1).max()
+        assert moved < REACH, moved
+        np.testing.assert_allclose(rec.cmd[-1], rec.cmd[-2], atol=1e-6)  # the last command at rest
+    assert not any(st.alarm for st in rec.status)
+    assert np.linalg.norm(rig.tcp(rig.pos())[:3, 3] - p0) < REACH
