@@ -104,6 +104,7 @@ class _Segment:
     nominal: bool = False  # the motion's own samples (``motion.q``): a blend into the next one may cut it
     joint: JointTrajectory | None = None  # in ``motion.blend``: the blend, a braking in it, or the way back
     blend: Blend | None = None  # set with ``joint``
+    rebase: bool = False  # PAUSE of an accepted early start: its resumed run becomes the motion's own
 
     @property
     def last_sent_time(self) -> float:
@@ -134,6 +135,13 @@ class _Segment:
         m = self.motion  # its own limits: an early start's head may have braked with others (slowed down since)
         profile = resume_profile(m.profile.length, self.profile.s_end, m.profile.limits)
         return _Segment(m, profile, m.joints_along(profile), _Kind.RUN)
+
+    def rebased(self) -> _Segment:
+        """This run as its motion's nominal one: the motion's profile and samples become this segment's,
+        so that a blend planned after it (into the next motion) cuts into what is streamed. Only before
+        anything was planned against the motion: an early start's, when it is accepted."""
+        m = dataclasses.replace(self.motion, profile=self.profile, q=self.q)
+        return _Segment(m, self.profile, self.q, _Kind.RUN, k=self.k, nominal=True)
 
     def continued(self, motion: PlannedMotion) -> _Segment:
         """``motion`` (on this segment's path, other limits) on from the state of the last sample sent."""
@@ -299,13 +307,14 @@ class Streamer:
                 if same:  # the whole motion's samples begin with the head's, bit for bit
                     seg.motion, seg.q, seg.nominal = motion, motion.q, True
                 else:  # slowed down: on from the state sent, within the slower limits
-                    self._active = seg.continued(motion)
+                    self._active = seg.continued(motion).rebased()
             elif seg is not None:  # braking on the head (it ran out, or a pause)
-                seg.motion, seg.resume_after = motion, not self._paused
+                seg.motion, seg.resume_after, seg.rebase = motion, not self._paused, True
             elif self._held is not None and self._held.motion is head:
                 self._held.motion = motion
+                self._held.rebase = True
                 if not self._paused:
-                    self._active, self._held = self._held.resumed(), None
+                    self._active, self._held = self._held.resumed().rebased(), None
             else:  # pragma: no cover - a head is active or held until confirmed, cancelled or discarded
                 raise AssertionError("the early start's head is neither streaming nor held")
             self._tail = motion.end.copy()
@@ -406,7 +415,7 @@ class Streamer:
             return "OK: resumed"
         if self._held is not None:
             held, self._held = self._held, None
-            self._active = held.resumed()
+            self._active = held.resumed().rebased() if held.rebase else held.resumed()
             log.info("resume: motion %d continues, %.3f s to its end", held.motion.motion,
                      self._active.duration)
             return "OK: resumed"
@@ -495,13 +504,18 @@ class Streamer:
         last_progress: PlannerProgress | None = None
         last_progress_at = 0.0
         last_now = last_late_log = time.time()
+        marks = [time.perf_counter()] * 7  # the previous round: woke, polled, locked, filled, published, done, slept
+        asked = 0.0  # [s] the sleep it asked for
         while not self._stop_event.is_set():
             self._pulse.beat()
+            woke = time.perf_counter()
             try:
                 status = self._poll_status()
                 now = time.time()
                 gap, last_now = now - last_now, now
+                polled = time.perf_counter()
                 with self._lock:
+                    locked = time.perf_counter()
                     if status is not None:
                         self._on_status(status, now)
                     elif self._has_work(now) and now - self._status_at > STATUS_TIMEOUT:
@@ -513,27 +527,34 @@ class Streamer:
                         self._last_done = self._inflight.popleft()[0]
                     progress = self._progress(now)
                     busy = self._active is not None or (self._queue and not self._paused)
+                filled = time.perf_counter()
                 if out is not None:
                     self._publish(out)
+                published = time.perf_counter()
                 if low and now - last_late_log > 1.0:
-                    log.warning("servo FIFO nearly empty mid-motion (%.1f commands estimated, %.1f ms "
-                                "since the streamer's previous round)", depth, gap * 1e3)
+                    # Where the time went (a late round is what runs the servo dry): the previous round's
+                    # phases, its sleep against the one asked for, and this round's start [ms].
+                    ms = [1e3 * (b - a) for a, b in zip(marks, marks[1:])]
+                    log.warning("servo FIFO nearly empty mid-motion (%.1f commands estimated, %.1f ms since the "
+                                "streamer's previous round: poll %.1f, lock %.1f, fill %.1f, publish %.1f, progress "
+                                "%.1f, then slept %.1f (asked %.1f); this round: poll %.1f, lock %.1f)", depth,
+                                gap * 1e3, *ms[:5], ms[5], asked * 1e3, 1e3 * (polled - woke), 1e3 * (locked - polled))
                     last_late_log = now
                 if (last_progress is None or progress.seq != last_progress.seq
                         or now - last_progress_at >= PROGRESS_PERIOD):
                     self._publish_progress(progress)
                     last_progress, last_progress_at = progress, now
+                marks = [woke, polled, locked, filled, published, time.perf_counter(), 0.0]
             except Exception:  # the engine must outlive a bug: log it, drop the motions, go on
                 log.exception("streamer iteration failed; aborting the queue")
                 with self._lock:
                     self._abort("internal error")
                 busy = False
-            if busy:  # a control call or new work wakes it early
-                self._wake.wait(STREAM_BLOCK)
-                self._wake.clear()
-            else:
-                self._wake.wait(STREAMER_IDLE)  # new work sets it at once
-                self._wake.clear()
+                marks = [woke] * 7
+            asked = STREAM_BLOCK if busy else STREAMER_IDLE  # a control call or new work wakes it early
+            self._wake.wait(asked)
+            self._wake.clear()
+            marks[6] = time.perf_counter()
 
     def _has_work(self, now: float) -> bool:
         return not self._idle(now)
@@ -624,7 +645,7 @@ class Streamer:
             if seg.joint is None and seg.profile.finished_at_end:  # it could only stop at the end: the motion is done
                 self._inflight.append((seg.motion.motion, due))
             elif seg.resume_after and seg.motion is not self._early:
-                self._active = seg.resumed()
+                self._active = seg.resumed().rebased() if seg.rebase else seg.resumed()
             else:
                 self._held = seg
                 if seg.motion is self._early:

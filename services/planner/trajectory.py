@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from .blend import Blend
 from .paths import JointLine
-from .profile import PathProfile, ProfileLimits, move_profile
+from .profile import PathProfile, ProfileLimits, continue_profile, move_profile
 
 Joints = NDArray[np.float64]
 
@@ -91,7 +91,7 @@ class PlannedMotion:
     motion: int  # id given by the planner's queue, UNQUEUED before
     op: str  # IDL operation name
     path: JointMap
-    profile: PathProfile  # nominal, from rest at s = 0 to rest at the end
+    profile: PathProfile  # nominal, from rest at s = 0 to rest at the end (an early start's: from where it went on)
     q: Joints  # (N, dof) joints at profile.sample(dt); q[0] is the start, q[-1] the end
     dt: float  # [s] sampling period (the servo period)
     #: (K, 3) [m] the control point at K of the samples, start to end, in the arm frame: what a
@@ -119,12 +119,15 @@ class PlannedMotion:
         return self.path.joints(profile.sample(self.dt).s)
 
     def __reduce__(self) -> tuple:
-        # Ruckig trajectories do not pickle: the nominal profile (rest to rest) is rebuilt.
+        # Ruckig trajectories do not pickle: the nominal profile (to rest at the end) is rebuilt.
         p = self.profile
         return (_rebuild, (self.motion, self.op, self.path, p.length, p.limits, p.s_start, self.q, self.dt,
-                           self.preview, self.blend))
+                           self.preview, self.blend, p.sd_start, p.sdd_start))
 
 
 def _rebuild(motion: int, op: str, path: JointMap, length: float, limits: ProfileLimits, s_start: float,
-             q: Joints, dt: float, preview: NDArray[np.float64], blend: Blend | None = None) -> PlannedMotion:
-    return PlannedMotion(motion, op, path, move_profile(length, limits, s_start), q, dt, preview, blend)
+             q: Joints, dt: float, preview: NDArray[np.float64], blend: Blend | None = None, sd_start: float = 0.0,
+             sdd_start: float = 0.0) -> PlannedMotion:
+    profile = (continue_profile(length, s_start, sd_start, sdd_start, limits) if sd_start or sdd_start
+               else move_profile(length, limits, s_start))
+    return PlannedMotion(motion, op, path, profile, q, dt, preview, blend)
