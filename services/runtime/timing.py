@@ -39,9 +39,11 @@ STREAM_LEAD: Final = 0.016
 #: servo handle 250 messages a second instead of 1000.
 STREAM_BLOCK: Final = 0.004
 #: A LIN / CIRC from rest may stream this much of its motion [s] before the whole of it is
-#: planned and checked (the early start): its first command goes out after its first knots, not
-#: all of them. 30 ms covers the rest's planning on this machine (10-15 ms) twice; a jerk-limited
-#: start covers well under 0.1 mm in it, all that a motion refused late can have moved.
+#: planned and checked (the early start): its first command goes out after its first knot
+#: interval, not all of them. With STREAM_LEAD, the rest's plan then has ~14 ms after the head
+#: went out (it takes 6-12 ms here); a jerk-limited start covers ~0.1 mm in 30 ms and braking
+#: from there within the same limits ~1.2 mm more: 1.31 mm in all for the 0.5 m LIN at 0.25 m/s
+#: at the iiwa's shortest acceleration time, what a motion refused late can have moved.
 EARLY_START: Final = 0.03
 #: Servo/status (measured speeds, efforts, joints) every this many cycles [cycles]: the
 #: alarm monitor's overload (3 samples) and overspeed (2 samples) detectors count these.
