@@ -318,3 +318,25 @@ def test_after_a_run_out_the_next_motion_still_blends(planner):
     corner = planner.kin.control_point(s.whole.end[:planner.n]).translation
     closest = min(np.linalg.norm(planner.kin.control_point(x[:planner.n]).translation - corner) for x in q)
     assert 1e-3 < closest <= 0.02 + 1e-6, closest  # it cut the corner: no stop there
+
+
+def test_accepted_while_braking_on_a_run_out_head_the_next_motion_still_blends(planner):
+    """Accepted while the run-out head still brakes (the reply goes out then, the next request follows at
+    once): the next LIN's blend is planned against, and cuts into, the run that follows the braking."""
+    s = _started(planner, _lin(planner, Q0, (0.0, 0.15, 0.0)))
+    sent = _send(s.streamer, len(s.head.q) + 20)  # the head, and 20 samples into its braking
+    s.streamer.confirm_early(s.whole, s.generation)
+    start, generation = s.streamer.start_point()
+    previous = s.streamer.last_motion()
+    assert previous is not None and previous.motion == 1
+    nxt = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(_pose(planner, s.whole.end, (0.15, 0.0, 0.0)))},
+                        motion_settings(IIWA, blendDistance=0.02))
+    second = planner.plan(nxt, start, previous)
+    assert second.blend is not None and s.streamer.submit(second, generation) is not None
+    sent += _send(s.streamer)
+    q = np.vstack([Q0[None, :], sent])
+    np.testing.assert_allclose(q[-1], second.end, atol=1e-12)
+    _smooth(q, planner)
+    corner = planner.kin.control_point(s.whole.end[:planner.n]).translation
+    closest = min(np.linalg.norm(planner.kin.control_point(x[:planner.n]).translation - corner) for x in q)
+    assert 1e-3 < closest <= 0.02 + 1e-6, closest

@@ -105,6 +105,7 @@ class _Segment:
     joint: JointTrajectory | None = None  # in ``motion.blend``: the blend, a braking in it, or the way back
     blend: Blend | None = None  # set with ``joint``
     rebase: bool = False  # PAUSE of an accepted early start: its resumed run becomes the motion's own
+    then: _Segment | None = None  # ... and that run, known already when it resumes by itself (resume_after)
 
     @property
     def last_sent_time(self) -> float:
@@ -248,8 +249,15 @@ class Streamer:
         with self._lock:
             if self._queue:
                 return self._queue[-1]
-            seg = self._active
+            seg = self._next_run()
             return seg.motion if seg is not None and seg.kind is _Kind.RUN else None
+
+    def _next_run(self) -> _Segment | None:
+        """The active segment, or the run that follows a braking by itself (an accepted early start's)."""
+        seg = self._active
+        if seg is not None and seg.kind is _Kind.PAUSE and seg.resume_after and seg.then is not None:
+            return seg.then
+        return seg
 
     def submit(self, motion: PlannedMotion, generation: int) -> tuple[int, PlannerProgress] | None:
         """Queue ``motion`` planned from ``start_point()``: its id and the progress it left
@@ -310,6 +318,9 @@ class Streamer:
                     self._active = seg.continued(motion).rebased()
             elif seg is not None:  # braking on the head (it ran out, or a pause)
                 seg.motion, seg.resume_after, seg.rebase = motion, not self._paused, True
+                if seg.resume_after:  # the run after the braking is known now: a next motion may blend into it
+                    seg.then = seg.resumed().rebased()
+                    seg.motion = seg.then.motion
             elif self._held is not None and self._held.motion is head:
                 self._held.motion = motion
                 self._held.rebase = True
@@ -352,7 +363,7 @@ class Streamer:
         """Whether ``blend`` can still leave the motion it starts from (lock held)."""
         if self._queue:
             return self._queue[-1].motion == blend.previous
-        seg = self._active
+        seg = self._next_run()
         if seg is None or seg.kind is not _Kind.RUN or seg.motion.motion != blend.previous:
             return False
         return seg.joint is not None or (seg.nominal and seg.k <= blend.cut + 1)
@@ -645,7 +656,7 @@ class Streamer:
             if seg.joint is None and seg.profile.finished_at_end:  # it could only stop at the end: the motion is done
                 self._inflight.append((seg.motion.motion, due))
             elif seg.resume_after and seg.motion is not self._early:
-                self._active = seg.resumed().rebased() if seg.rebase else seg.resumed()
+                self._active = seg.then or (seg.resumed().rebased() if seg.rebase else seg.resumed())
             else:
                 self._held = seg
                 if seg.motion is self._early:
