@@ -391,7 +391,8 @@ def test_live_echo_state_once_prints_the_next_change(arm: Arm) -> None:
             arm.client.common(OP.servoOFF if on else OP.servoON)
             time.sleep(0.2)
             return False
-        wait_until(printed, timeout=30, interval=0.1, what="echo's one sample")
+        wait_until(printed, timeout=30, interval=0.1, what="echo's one sample",
+                   explain=lambda: f"state {arm.client.state():#x}; echo's output so far:\n{echo.output}")
         assert echo.popen.wait(5) == 0, echo.output
     finally:
         echo.stop()
