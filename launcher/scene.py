@@ -219,7 +219,7 @@ class ArmScene:
         return len(self._links)
 
     def show_joints(self, joints: Sequence[float]) -> None:
-        """Place the links at the wire joints [rad or m] (a ``Servo/posFeedback`` sample)."""
+        """Place the links at the wire joints [rad or m] (a ``Servo/status`` sample's measured ones)."""
         joints = tuple(joints)
         if joints == self._joints:
             return

@@ -8,8 +8,13 @@ back is drawn again (rebuilt if its robot changed). Per arm, from:
 
 * ``Servo/world`` (a get, then its publication): the robot model, hence its
   URDF (links, meshes, primitives), the base position and the obstacles;
-* ``Servo/posFeedback`` (1 kHz): the joints; only the newest sample is kept
-  (a ring of one) and the page is updated at most ``rate`` times a second;
+* ``Servo/status`` (100 Hz moving, 10 Hz at rest): the measured joints; only
+  the newest sample is kept (a ring of one) and the page is updated at most
+  ``rate`` times a second. Not ``Servo/posFeedback`` (1 kHz): a page is drawn
+  at 30 Hz, and with a browser beside it this process falls behind a 1 kHz
+  stream; the router's queue to it then filled and held up every other
+  service's messages for 1-2.7 s (false hung FAULTs in 6 of 12 runs of
+  ``tests/test_view.py``'s live test; 0 of 10 on ``Servo/status``);
 * ``Command/settings``: the Cartesian soft-limit box, the base offset (the
   robot frame) and the control point offset (the control point frame);
 * ``Planner/path`` and ``Planner/progress``: the path of the running motion;
@@ -42,11 +47,11 @@ from jara_arm.schema.alarms import ALARM_LIST, AlarmList, format_code
 from jara_arm.schema.codec import Encoding
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import ArmKeys, Service, any_arm_alive, parse_alive
-from jara_arm.schema.messages import ALARM_EVENT, SERVO_WORLD, ServoWorld
+from jara_arm.schema.messages import ALARM_EVENT, SERVO_STATUS, SERVO_WORLD, ServoWorld
 from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.planner import MOTION_SETTINGS, PLANNED_PATH, PLANNER_PROGRESS
 from jara_arm.schema.types import Alarm
-from jara_arm.schema.wire_types import TIMED_JOINT_POS, StructType
+from jara_arm.schema.wire_types import StructType
 
 from .arm_state import format_state, read_state
 from .scene import ArmScene, RobotGeometry
@@ -106,7 +111,7 @@ class ArmFeeds:
         self.keys = keys = ArmKeys(arm)
         self._session = session
         ring = zenoh.handlers.RingChannel
-        self.feedback = session.declare_subscriber(keys.pos_feedback, ring(1))
+        self.feedback = session.declare_subscriber(keys.servo_status, ring(1))
         self.world = session.declare_subscriber(keys.servo_world, ring(1))
         self.settings = session.declare_subscriber(keys.command_settings, ring(1))
         self.progress = session.declare_subscriber(keys.planner_progress, ring(1))
@@ -199,7 +204,7 @@ class ArmView:
         if self._pending_settings is not None:
             scene.show_settings(self._pending_settings)
             self._pending_settings = None
-        if feedback is not None and (fb := _decode(TIMED_JOINT_POS, feedback)) is not None:
+        if feedback is not None and (fb := _decode(SERVO_STATUS, feedback)) is not None and fb.pos:
             try:
                 scene.show_joints(fb.pos)
                 self.frames += 1

@@ -29,6 +29,7 @@ from jara_arm.services.planner.streamer import Streamer
 from jara_arm.services.planner.trajectory import PlannedMotion
 
 from .support import car, motion_settings
+from .test_blend import _send
 from .test_planner import Rig, start_rig
 
 pytestmark = pytest.mark.timeout(120)
@@ -140,16 +141,6 @@ def _started(planner: MotionPlanner, req: MotionRequest) -> _Started:
     assert head is not None and st.start_early(head.motion, generation)
     assert not st.can_start_early()  # one at a time
     return _Started(st, head.motion, planner.plan(req, start), generation, head.reach)
-
-
-def _send(st: Streamer, count: int | None = None) -> list[np.ndarray]:
-    out: list[np.ndarray] = []
-    while count is None or len(out) < count:
-        q = st._next_sample(0.0)
-        if q is None:
-            break
-        out.append(q.copy())
-    return out
 
 
 def _smooth(q: np.ndarray, planner: MotionPlanner) -> None:
@@ -296,11 +287,12 @@ def test_live_a_box_mid_path_refuses_the_lin_and_it_stops_within_the_head(boxed_
     assert np.linalg.norm(rig.tcp(rig.pos())[:3, 3] - p0) < REACH
 
 
-def test_after_a_run_out_the_next_motion_still_blends(planner):
-    """A head that ran out and held: once accepted, the motion's samples are the ones streamed, so a LIN
-    planned after it with a blend distance blends into them (not the exact stop)."""
+@pytest.mark.parametrize("braking", [False, True], ids=["held", "braking"])
+def test_after_a_run_out_the_next_motion_still_blends(planner, braking):
+    """A head that ran out, accepted once it holds, or while it still brakes (the reply goes out then and the
+    next request follows at once): the next LIN's blend is planned against, and cuts into, what is streamed."""
     s = _started(planner, _lin(planner, Q0, (0.0, 0.15, 0.0)))
-    sent = _send(s.streamer)  # ran out, braked, holds
+    sent = _send(s.streamer, len(s.head.q) + 20 if braking else None)  # 20 samples into the braking, or all
     s.streamer.confirm_early(s.whole, s.generation)
     start, generation = s.streamer.start_point()
     np.testing.assert_array_equal(start, s.whole.end)
@@ -318,25 +310,3 @@ def test_after_a_run_out_the_next_motion_still_blends(planner):
     corner = planner.kin.control_point(s.whole.end[:planner.n]).translation
     closest = min(np.linalg.norm(planner.kin.control_point(x[:planner.n]).translation - corner) for x in q)
     assert 1e-3 < closest <= 0.02 + 1e-6, closest  # it cut the corner: no stop there
-
-
-def test_accepted_while_braking_on_a_run_out_head_the_next_motion_still_blends(planner):
-    """Accepted while the run-out head still brakes (the reply goes out then, the next request follows at
-    once): the next LIN's blend is planned against, and cuts into, the run that follows the braking."""
-    s = _started(planner, _lin(planner, Q0, (0.0, 0.15, 0.0)))
-    sent = _send(s.streamer, len(s.head.q) + 20)  # the head, and 20 samples into its braking
-    s.streamer.confirm_early(s.whole, s.generation)
-    start, generation = s.streamer.start_point()
-    previous = s.streamer.last_motion()
-    assert previous is not None and previous.motion == 1
-    nxt = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(_pose(planner, s.whole.end, (0.15, 0.0, 0.0)))},
-                        motion_settings(IIWA, blendDistance=0.02))
-    second = planner.plan(nxt, start, previous)
-    assert second.blend is not None and s.streamer.submit(second, generation) is not None
-    sent += _send(s.streamer)
-    q = np.vstack([Q0[None, :], sent])
-    np.testing.assert_allclose(q[-1], second.end, atol=1e-12)
-    _smooth(q, planner)
-    corner = planner.kin.control_point(s.whole.end[:planner.n]).translation
-    closest = min(np.linalg.norm(planner.kin.control_point(x[:planner.n]).translation - corner) for x in q)
-    assert 1e-3 < closest <= 0.02 + 1e-6, closest

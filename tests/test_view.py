@@ -46,7 +46,15 @@ from jara_arm.robots import ROBOTS, robot
 from jara_arm.schema import codec
 from jara_arm.schema.codes import StateBit
 from jara_arm.schema.keys import ArmKeys, Service
-from jara_arm.schema.messages import SERVO_WORLD, STATE_MESSAGE, ServoWorld, StateMessage, WorldBox
+from jara_arm.schema.messages import (
+    SERVO_STATUS,
+    SERVO_WORLD,
+    STATE_MESSAGE,
+    ServoStatus,
+    ServoWorld,
+    StateMessage,
+    WorldBox,
+)
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import (
     MOTION_SETTINGS,
@@ -57,8 +65,7 @@ from jara_arm.schema.planner import (
     PlannedPath,
     PlannerProgress,
 )
-from jara_arm.schema.types import LimitValue, Time, TimedJointPos
-from jara_arm.schema.wire_types import TIMED_JOINT_POS
+from jara_arm.schema.types import LimitValue, Time
 from jara_arm.services.planner.planning import PREVIEW_POINTS, MotionPlanner
 from jara_arm.services.runtime.wire import Publication
 from jara_arm.services.runtime.zenoh_args import zenoh_config
@@ -164,7 +171,7 @@ class FakeArm:
         self._stop = threading.Event()
         self._pubs = [Publication(session, keys.servo_world), Publication(session, keys.command_settings),
                       Publication(session, keys.state)]
-        self._fb = session.declare_publisher(keys.pos_feedback)
+        self._fb = session.declare_publisher(keys.servo_status)
         self._token = session.liveliness().declare_token(keys.alive(Service.SERVO))
         self.sent = 0
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -182,7 +189,7 @@ class FakeArm:
             self._fb.put(codec.encode_message(*_feedback(self.joints)))
             self.sent += 1
             k += 1
-            time.sleep(0.001)  # ~1 kHz (less on a busy machine: the test counts what was sent)
+            time.sleep(0.001)  # ~1 kHz, faster than the servo's 100 Hz (less on a busy machine: the test counts)
 
     def publish_path(self, motion: int, running: int) -> None:
         """A ``Planner/path`` of ``motion`` (a line from the origin), then a progress with ``running``."""
@@ -206,7 +213,11 @@ class FakeArm:
 
 
 def _feedback(joints: np.ndarray) -> tuple[Any, Any]:
-    return TIMED_JOINT_POS, TimedJointPos(Time.from_seconds(time.time()), tuple(joints.tolist()))
+    """A ``Servo/status`` whose measured joints are ``joints``: what the view draws."""
+    q = tuple(joints.tolist())
+    zeros = (0.0,) * len(q)
+    return SERVO_STATUS, ServoStatus(Time.from_seconds(time.time()), True, False, False, 0, 0, 0, 0, zeros, zeros,
+                                     q, pos=q)
 
 
 def _step_for(view: View, seconds: float, rate: float) -> None:
