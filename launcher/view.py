@@ -12,9 +12,10 @@ back is drawn again (rebuilt if its robot changed). Per arm, from:
   the newest sample is kept (a ring of one) and the page is updated at most
   ``rate`` times a second. Not ``Servo/posFeedback`` (1 kHz): a page is drawn
   at 30 Hz, and with a browser beside it this process falls behind a 1 kHz
-  stream; the router's queue to it then filled and held up every other
-  service's messages for 1-2.7 s (false hung FAULTs in 6 of 12 runs of
-  ``tests/test_view.py``'s live test; 0 of 10 on ``Servo/status``);
+  stream. Every service then went unheard for 1-2.7 s (false hung FAULTs in
+  6 of 12 runs of ``tests/test_view.py``'s live test; 0 of 10 on
+  ``Servo/status``): by all signs the router, held up by its queue to this
+  process (inferred, not traced);
 * ``Command/settings``: the Cartesian soft-limit box, the base offset (the
   robot frame) and the control point offset (the control point frame);
 * ``Planner/path`` and ``Planner/progress``: the path of the running motion;
