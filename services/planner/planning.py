@@ -647,7 +647,7 @@ class MotionPlanner:
         if early < 2:
             return
         q = np.repeat(start[None, :], m, axis=0)
-        q[:, :self.n] = joints.joints(s[:m], self._ik_targets(poses[:m], frames, rule))
+        q[:, :self.n] = joints.joints(s[:m], self._ik_targets(poses, frames, rule))
         if (np.abs(np.diff(q[:, :self.n], axis=0)) / self.dt > vmax).any() or self.collisions.check(q) is not None:
             return  # the whole plan decides and says why
         while early >= 2 and profile.stop_at((early - 1) * self.dt).s_end > s[m - 1]:

@@ -265,11 +265,6 @@ class PathJoints:
         self.spline = HermiteSpline(np.zeros(0), np.zeros((0, len(start))), np.zeros((0, len(start))))
         self.solve_knots(len(self._knots) if first_knots is None else first_knots)
 
-    @property
-    def solved(self) -> bool:
-        """Every knot is solved: the spline spans the whole path."""
-        return len(self._q) == len(self._knots)
-
     def solve_knots(self, count: int | None = None) -> None:
         """Solve the first ``count`` uniform knots (all by default) that are not solved yet; the spline then
         runs to the last of them. Cubic Hermite pieces are local: the samples before an already solved knot

@@ -104,8 +104,9 @@ class _Segment:
     nominal: bool = False  # the motion's own samples (``motion.q``): a blend into the next one may cut it
     joint: JointTrajectory | None = None  # in ``motion.blend``: the blend, a braking in it, or the way back
     blend: Blend | None = None  # set with ``joint``
-    rebase: bool = False  # PAUSE of an accepted early start: its resumed run becomes the motion's own
-    then: _Segment | None = None  # ... and that run, known already when it resumes by itself (resume_after)
+    #: PAUSE (or held) of an accepted early start: the run after it, known at acceptance and rebased as the
+    #: motion's own, so that a next motion planned meanwhile blends into what will be streamed
+    then: _Segment | None = None
 
     @property
     def last_sent_time(self) -> float:
@@ -317,15 +318,14 @@ class Streamer:
                 else:  # slowed down: on from the state sent, within the slower limits
                     self._active = seg.continued(motion).rebased()
             elif seg is not None:  # braking on the head (it ran out, or a pause)
-                seg.motion, seg.resume_after, seg.rebase = motion, not self._paused, True
-                if seg.resume_after:  # the run after the braking is known now: a next motion may blend into it
-                    seg.then = seg.resumed().rebased()
-                    seg.motion = seg.then.motion
+                seg.motion, seg.resume_after = motion, not self._paused
+                seg.then = seg.resumed().rebased()
             elif self._held is not None and self._held.motion is head:
-                self._held.motion = motion
-                self._held.rebase = True
+                held = self._held
+                held.motion = motion
+                held.then = held.resumed().rebased()
                 if not self._paused:
-                    self._active, self._held = self._held.resumed().rebased(), None
+                    self._active, self._held = held.then, None
             else:  # pragma: no cover - a head is active or held until confirmed, cancelled or discarded
                 raise AssertionError("the early start's head is neither streaming nor held")
             self._tail = motion.end.copy()
@@ -426,7 +426,7 @@ class Streamer:
             return "OK: resumed"
         if self._held is not None:
             held, self._held = self._held, None
-            self._active = held.resumed().rebased() if held.rebase else held.resumed()
+            self._active = held.then or held.resumed()
             log.info("resume: motion %d continues, %.3f s to its end", held.motion.motion,
                      self._active.duration)
             return "OK: resumed"
@@ -656,7 +656,7 @@ class Streamer:
             if seg.joint is None and seg.profile.finished_at_end:  # it could only stop at the end: the motion is done
                 self._inflight.append((seg.motion.motion, due))
             elif seg.resume_after and seg.motion is not self._early:
-                self._active = seg.then or (seg.resumed().rebased() if seg.rebase else seg.resumed())
+                self._active = seg.then or seg.resumed()
             else:
                 self._held = seg
                 if seg.motion is self._early:
