@@ -1,12 +1,16 @@
 """Soak: N arms moving continuously for M minutes; every alarm in a soak is a false alarm.
 
-    python bench/soak.py [--arms N] [--minutes M] [--hog] [--robot iiwa] [--timing same-host]
+    python bench/soak.py [--arms N] [--minutes M] [--hog] [--slow-client] [--frozen-client]
+                         [--robot iiwa] [--timing same-host]
 
 Starts ``jara-arm up`` with N arms, switches every servo on and drives each arm
 back and forth between two joint poses (``movePTPJointAbs`` at 50 %, the next
 motion queued while the current one runs, so the stream never pauses). With
 ``--hog``, one normal-priority busy loop per core runs for the whole soak (the
-vision, UI and logging a real cell's PC also runs).
+vision, UI and logging a real cell's PC also runs). ``--slow-client`` connects a client that
+subscribes to ``JARA_ARM/**`` and spends 20 ms in each sample's callback; ``--frozen-client`` one
+that subscribes to every arm's ``Servo/posFeedback`` and is stopped (SIGSTOP) for 10 s, let go for
+5 s, again and again (``bench/bad_client.py``).
 
 Reports per arm: servo cycles, cycles late by more than one period, overruns,
 underruns (from the servo's own ``Servo/health``), motions completed, calls
@@ -23,6 +27,8 @@ import json
 import multiprocessing
 import os
 import re
+import signal
+import subprocess
 import sys
 import threading
 import time
@@ -92,6 +98,31 @@ def hog() -> None:  # pragma: no cover - runs in its own process
         pass
 
 
+BAD_CLIENT = Path(__file__).parent / "bad_client.py"
+FREEZE = (10.0, 5.0)  #: the frozen client's cycle: stopped, then running [s]
+
+
+def start_bad_client(kind: str, port: int) -> subprocess.Popen:
+    """``bench/bad_client.py KIND`` connected to the launcher's client endpoint, once ready."""
+    proc = subprocess.Popen([sys.executable, str(BAD_CLIENT), kind, "--connect", f"tcp/127.0.0.1:{port}"],
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    if "ready" not in proc.stdout.readline():
+        raise RuntimeError(f"bad client {kind} did not start")
+    # Its output is not read any more: a full pipe would stop it, so it goes nowhere.
+    threading.Thread(target=lambda: proc.stdout and proc.stdout.read(), daemon=True).start()
+    return proc
+
+
+def freeze_cycles(proc: subprocess.Popen, stop: threading.Event) -> None:
+    """Stop ``proc`` for FREEZE[0] s, let it run FREEZE[1] s, until ``stop``; leaves it running."""
+    while not stop.is_set():
+        proc.send_signal(signal.SIGSTOP)
+        stop.wait(FREEZE[0])
+        proc.send_signal(signal.SIGCONT)
+        stop.wait(FREEZE[1])
+
+
 def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Two joint poses around the ready pose, inside the limits."""
     m = robot(model_name)
@@ -152,6 +183,9 @@ def main() -> int:
     ap.add_argument("--arms", type=int, default=1)
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--hog", action="store_true", help="a normal-priority busy loop on every core")
+    ap.add_argument("--slow-client", action="store_true", help="a client at 20 ms per sample of JARA_ARM/**")
+    ap.add_argument("--frozen-client", action="store_true",
+                    help="a client of Servo/posFeedback stopped 10 s of every 15")
     ap.add_argument("--robot", default="iiwa")
     ap.add_argument("--timing", default="same-host")
     ap.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
@@ -194,11 +228,19 @@ def main() -> int:
         subs = [session.declare_subscriber(any_arm_alarm(), on_alarm),
                 session.declare_subscriber(any_arm_log(), on_log)]
         subs += [session.declare_subscriber(ArmKeys(a).servo_health, on_health) for a in arm_ids]
+        bad: list[subprocess.Popen] = []
+        stop = threading.Event()
+        if args.slow_client:
+            bad.append(start_bad_client("slow", port))
+        freezer = None
+        if args.frozen_client:
+            bad.append(start_bad_client("frozen", port))
+            freezer = threading.Thread(target=freeze_cycles, args=(bad[-1], stop), daemon=True)
+            freezer.start()
         if args.hog:
             hogs = [ctx.Process(target=hog, daemon=True) for _ in range(os.cpu_count() or 1)]
             for h in hogs:
                 h.start()
-        stop = threading.Event()
         until = time.monotonic() + args.minutes * 60.0
         cpu_before = cpu.snapshot(roots)
         t0 = time.monotonic()
@@ -212,6 +254,12 @@ def main() -> int:
             d.start()
         for d in drivers:
             d.join()
+        stop.set()
+        if freezer is not None:
+            freezer.join()
+        for b in bad:
+            b.kill()
+            b.wait()
         cpu_after = cpu.snapshot(roots)
         wall = time.monotonic() - t0
         steal_stop.set()
@@ -225,7 +273,8 @@ def main() -> int:
         before = cpu_before[pid].ticks if pid in cpu_before else s.ticks
         shares[s.name] = shares.get(s.name, 0.0) + (s.ticks - before) / cpu._TICK / wall
     print(f"soak: {args.arms} arm(s) of {args.robot}, {wall / 60:.1f} min, hog {'on' if args.hog else 'off'}, "
-          f"timing {args.timing}; ready after {ready_after:.1f} s")
+          f"timing {args.timing}, slow client {'on' if args.slow_client else 'off'}, frozen client "
+          f"{'on' if args.frozen_client else 'off'}; ready after {ready_after:.1f} s")
     print(f"{'arm':<5} {'cycles':>8} {'late>1T':>8} {'late %':>8} {'max ms':>7} {'overrun':>8} "
           f"{'underrun':>8} {'motions':>8} {'refused':>8} {'stalls':>7} {'longest':>8}")
     for a, t in tallies.items():
@@ -253,7 +302,8 @@ def main() -> int:
         print("  " + line)
     if args.json:
         Path(args.json).write_text(json.dumps({
-            "arms": args.arms, "minutes": wall / 60, "hog": args.hog, "timing": args.timing,
+            "arms": args.arms, "minutes": wall / 60, "hog": args.hog, "slow_client": args.slow_client,
+            "frozen_client": args.frozen_client, "timing": args.timing,
             "ready_after_s": ready_after, "alarms": alarms, "warnings": len(warnings),
             "per_arm": {a: dataclasses.asdict(t) | {"stalls": stalls[a], "longest_stall_ms": longest[a]}
                         for a, t in tallies.items()},

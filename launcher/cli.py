@@ -2,9 +2,10 @@
 
     jara-arm up [--arm ID[:ROBOT]]... [--robot NAME] [--demo] [--obstacle X,Y,Z,HX,HY,HZ]... [--hidden-obstacle ...]...
                 [--listen ENDPOINT]... [--connect ENDPOINT]... [--config ZENOH_CONFIG_FILE] [--multicast]
-                [--log-level LEVEL]
+                [--bus-listen ENDPOINT]... [--log-level LEVEL]
     jara-arm service NAME [the service's own arguments; see jara-arm service NAME --help]
-    jara-arm router [--listen ENDPOINT]... [--connect ENDPOINT]... [--config FILE] [--multicast]
+    jara-arm router [--gateway | --bus] [--gateway-id HEX]... [--listen ENDPOINT]... [--connect ENDPOINT]...
+                    [--config FILE] [--multicast]
     jara-arm logs [--arm ID] [--service NAME] [--level LEVEL] [Zenoh options]
     jara-arm alarms [--arm ID] [Zenoh options]
     jara-arm call [--arm ID] [--servo] [--timeout S] OP [JSON] [Zenoh options]
@@ -38,6 +39,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -63,6 +65,7 @@ from .record import RecordSettings, lower_priority, run_record
 from .recording import RecordingError, RecordingWriter
 from .recording import info as recording_info
 from .replay import ReplaySettings, plan, run_replay
+from .gateway import GATEWAY_ZID
 from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
 from .services import NAMES, SERVICES, spec
 from .state_view import run_state
@@ -106,6 +109,9 @@ class _Parsers:
                              help="a box in the simulated world that the planners are not told of (an "
                              "unmodelled obstacle, as for the overload alarm): centre and half extents [m] "
                              "(repeatable)")
+        self.up.add_argument("--bus-listen", action="append", default=[], metavar="ENDPOINT",
+                             help="also open the cell bus (where the services meet; private by default) on "
+                             "ENDPOINT, for services of other hosts; clients use --listen (repeatable)")
         _log_level(self.up)
         _router_zenoh_arguments(self.up)
         add_health_arguments(self.up)
@@ -122,6 +128,16 @@ class _Parsers:
             "router", help="run a plain Zenoh router that services and clients join",
             description=f"A Zenoh router (default listen endpoint {DEFAULT_LISTEN}) that runs "
             "until SIGINT/SIGTERM, reporting the services that join or leave.")
+        role = self.router.add_mutually_exclusive_group()
+        role.add_argument("--gateway", action="store_true",
+                          help="a client gateway: clients join it, it joins the cell bus (--connect); every "
+                          "publication it forwards is best effort and it never waits on a client")
+        role.add_argument("--bus", action="store_true",
+                          help="a router of the cell bus, which only services and gateways join: its blocking "
+                          "position stream reaches the gateways as best effort")
+        self.router.add_argument("--gateway-id", action="append", default=[], metavar="HEX",
+                                 help=f"the gateway's Zenoh id (default: {GATEWAY_ZID}); with --bus, every "
+                                 "gateway's (repeatable)")
         _log_level(self.router)
         _router_zenoh_arguments(self.router)
 
@@ -420,7 +436,12 @@ def command_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, list[s
 
 def _router_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> RouterSettings:
     settings = RouterSettings(tuple(args.listen), tuple(args.connect), args.config, args.multicast,
-                              args.secure, args.identity)
+                              args.secure, args.identity, gateway=getattr(args, "gateway", False),
+                              bus=getattr(args, "bus", False),
+                              gateway_ids=tuple(getattr(args, "gateway_id", None) or (GATEWAY_ZID,)))
+    for zid in settings.gateway_ids:
+        if not re.fullmatch(r"[1-9a-f][0-9a-f]{0,31}", zid):
+            parser.error(f"--gateway-id {zid!r}: a Zenoh id is 1 to 32 lowercase hex digits, not starting with 0")
     try:  # resolve the listen endpoints once (--listen, else the config file's, else the default)
         return dataclasses.replace(settings, listen=settings.endpoints())
     except RouterError as exc:
@@ -443,7 +464,7 @@ def _up_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> U
             parser.error(f"--arm {item}: arm {arm!r} is given twice")
         arms.append(ArmSpec(arm, robot))
     return UpSettings(tuple(arms), _router_settings(args, parser), args.log_level, tuple(args.obstacle),
-                      tuple(args.hidden_obstacle), args.demo, health_from_args(args))
+                      tuple(args.hidden_obstacle), args.demo, health_from_args(args), tuple(args.bus_listen))
 
 
 def _setup_logging(level: str) -> None:

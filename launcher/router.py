@@ -19,6 +19,7 @@ from jara_arm.schema.keys import any_arm_alive, parse_alive
 from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
 from jara_arm.services.runtime.zenoh_args import default_endpoint, zenoh_config
 
+from .gateway import GATEWAY_ZID, bus_config, gateway_config
 from .refusals import RefusalLog
 from .supervisor import StopSignals
 
@@ -52,6 +53,12 @@ class RouterSettings:
     multicast: bool = False
     secure: str | None = None  #: the cell directory (``--secure``); None: an open cell
     identity: str = ROUTER_IDENTITY
+    #: a client gateway (``--gateway``): best effort to every client, never waiting on one (launcher/gateway.py)
+    gateway: bool = False
+    #: a router of the cell bus (``--bus``): its blocking stream reaches the gateways as best effort
+    bus: bool = False
+    #: the Zenoh id of the gateway (``gateway``), or of the gateways the bus knows (``bus``)
+    gateway_ids: tuple[str, ...] = (GATEWAY_ZID,)
 
     def endpoints(self) -> tuple[str, ...]:
         """The endpoints to listen on: ``--listen``, else the config file's, else the default."""
@@ -68,8 +75,13 @@ class RouterSettings:
 
     def config_object(self) -> zenoh.Config:
         try:
-            return zenoh_config("router", self.endpoints(), self.connect, self.config, self.multicast,
+            conf = zenoh_config("router", self.endpoints(), self.connect, self.config, self.multicast,
                                 self.secure, self.identity)
+            if self.gateway:
+                gateway_config(conf, self.gateway_ids[0])
+            if self.bus:
+                bus_config(conf, self.gateway_ids)
+            return conf
         except zenoh.ZError as exc:
             raise RouterError(f"bad Zenoh settings: {zerror_text(exc)}") from exc
         except CellError as exc:
@@ -77,6 +89,8 @@ class RouterSettings:
 
     def announce(self) -> None:
         """Say at start how open the cell is: an open one lets anyone who reaches it move the arm."""
+        if self.bus and not self.gateway and all(e.startswith("unixsock-stream/") for e in self.endpoints()):
+            return  # the launcher's private bus: no client reaches it
         if self.secure:
             log.info("secure cell %s: mutual TLS as %r; roles enforced on every link", self.secure, self.identity)
         else:

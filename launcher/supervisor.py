@@ -49,9 +49,11 @@ def _is_error(returncode: int) -> bool:
 class Child:
     """One service process of one arm; started again whenever it dies."""
 
-    def __init__(self, label: str, argv: Sequence[str], env: Mapping[str, str] | None = None) -> None:
+    def __init__(self, label: str, argv: Sequence[str], env: Mapping[str, str] | None = None,
+                 echo: Callable[[str], None] | None = None) -> None:
         self.label = label  #: e.g. ``servo (arm0)``
         self.argv = list(argv)
+        self.echo = echo  #: called with each line the process prints (besides keeping its tail)
         self.env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.popen: subprocess.Popen[str] | None = None
         self.tail: collections.deque[str] = collections.deque(maxlen=TAIL_LINES)
@@ -87,16 +89,19 @@ class Child:
             return
         log.info("started %s: pid %d", self.label, self.popen.pid)
         log.debug("%s command: %s", self.label, " ".join(self.argv))
-        self._reader = threading.Thread(target=self._read, args=(self.popen, self.tail),
+        self._reader = threading.Thread(target=self._read, args=(self.popen, self.tail, self.echo),
                                         name=f"output {self.label}", daemon=True)
         self._reader.start()
 
     @staticmethod
-    def _read(popen: subprocess.Popen[str], tail: collections.deque[str]) -> None:
+    def _read(popen: subprocess.Popen[str], tail: collections.deque[str],
+              echo: Callable[[str], None] | None) -> None:
         assert popen.stdout is not None
         with popen.stdout:
             for line in popen.stdout:
                 tail.append(line.rstrip("\n"))
+                if echo is not None:
+                    echo(line.rstrip("\n"))
 
     def poll(self, now: float) -> None:
         """Notice a death (and say why) or start the pending restart when it is due."""

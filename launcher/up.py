@@ -1,11 +1,12 @@
-"""``jara-arm up``: every service of every arm, behind one Zenoh router, on this host.
+"""``jara-arm up``: every service of every arm, on a private cell bus, behind a client gateway, on this host.
 
-Topology: the launcher opens one router session listening on the given
-endpoints; each service of each arm is a process of its own that joins it as a
-client on the first of them. A client or peer connecting to any listen endpoint
-therefore reaches every service of every arm. The launcher prints the
-services' logs (received over Zenoh), one ready line once every liveliness
-token is up, restarts crashed services with backoff, and stops them all, in
+Topology (launcher/gateway.py): the launcher process is the **cell bus**, a Zenoh router on a
+private endpoint (a Unix socket only this user can open; in a secure cell a TLS port on loopback)
+that every service process joins as a client. A **client gateway**, a router process of its own,
+listens on the given endpoints and joins the bus: clients reach every service of every arm
+through it, and no client shares a dispatch queue with the services' own traffic. The launcher
+prints the services' logs (received over the bus), one ready line once every liveliness token is
+up and the gateway has joined, restarts crashed processes with backoff, and stops them all, in
 reverse start order, on SIGINT/SIGTERM.
 """
 
@@ -17,12 +18,14 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 
 from jara_arm.schema.keys import Service, any_arm_log
 from jara_arm.services.runtime.cell import SERVICE_IDENTITY
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.timing import SAME_HOST, Health, health_argv
 
+from .gateway import private_bus
 from .router import Presence, RouterSettings, local_endpoint, open_router, say
 from .services import SERVICES, ServiceSpec
 from .supervisor import Child, StopSignals, Supervisor
@@ -52,10 +55,14 @@ class UpSettings:
     hidden_obstacles: tuple[str, ...] = ()
     demo: bool = False  # once ready, run ``jara-arm demo`` on every arm (its output on stdout)
     health: Health = SAME_HOST  # passed to every service (--timing, --hung-after)
+    #: more endpoints of the cell bus (``--bus``), for services of other hosts; the private one is always there
+    bus: tuple[str, ...] = ()
 
 
-#: SCHED_FIFO priority of the router's threads: between the servo (40) and the planner (30).
+#: SCHED_FIFO priority of the cell bus's threads: between the servo (40) and the planner (30). The client
+#: gateway runs at normal priority: its work is what clients ask for, without bound.
 ROUTER_RT_PRIORITY = 35
+GATEWAY_LABEL = "client gateway"
 
 
 def demo_argv(arm: ArmSpec, settings: UpSettings) -> list[str]:
@@ -71,10 +78,41 @@ def secure_argv(settings: UpSettings) -> list[str]:
     return ["--secure", os.path.abspath(settings.router.secure), "--identity", SERVICE_IDENTITY]
 
 
-def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings) -> list[str]:
-    """The command line of one service process: a client of the launcher's router."""
+def gateway_settings(settings: UpSettings, bus: str) -> RouterSettings:
+    """The client gateway: listening where ``up`` was told to, joined to the bus at ``bus``."""
+    r = settings.router
+    return RouterSettings(r.endpoints(), (bus,), r.config, r.multicast, r.secure, r.identity, gateway=True)
+
+
+def gateway_child(settings: UpSettings, bus: str) -> Child:
+    """``jara-arm router --gateway`` as a child process of the launcher."""
+    g = gateway_settings(settings, bus)
+    argv = [sys.executable, "-m", "jara_arm.launcher", "router", "--gateway", "--log-level", settings.log_level,
+            "--connect", bus, *[a for e in g.listen for a in ("--listen", e)]]
+    if g.config:
+        argv += ["--config", os.path.abspath(g.config)]
+    if g.secure:
+        argv += ["--secure", os.path.abspath(g.secure), "--identity", g.identity]
+    return Child(GATEWAY_LABEL, argv, echo=_echo_gateway)
+
+
+def _echo_gateway(line: str) -> None:
+    """The gateway's warnings, errors and refusals on the launcher's stderr; not its ready line (not the
+    cell's) nor its INFO lines (the services it sees join and leave, which the launcher says too)."""
+    if not line.startswith("jara-arm: ready") and " INFO " not in line and " DEBUG " not in line:
+        print(line, file=sys.stderr, flush=True)
+
+
+def bus_settings(settings: UpSettings, bus: str) -> RouterSettings:
+    """The launcher's own router: the cell bus, on ``bus`` and any further ``--bus`` endpoints."""
+    r = settings.router
+    return dataclasses.replace(r, listen=(bus, *settings.bus), bus=True)
+
+
+def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings, bus: str) -> list[str]:
+    """The command line of one service process: a client of the cell bus at ``bus``."""
     argv = [sys.executable, "-m", service.module, "--arm", arm.arm, "--robot", arm.robot,
-            "--mode", "client", "--connect", local_endpoint(settings.router.endpoints()[0]),
+            "--mode", "client", "--connect", bus,
             "--exit-with-parent", "--log-level", settings.log_level, *health_argv(settings.health)]
     if settings.router.config:
         argv += ["--config", os.path.abspath(settings.router.config)]
@@ -92,7 +130,7 @@ def label(service: str, arm: str) -> str:
     return f"{service} ({arm})"
 
 
-def children(service: ServiceSpec, settings: UpSettings) -> list[Child]:
+def children(service: ServiceSpec, settings: UpSettings, bus: str) -> list[Child]:
     """The processes of ``service``: one per arm, but one servo for every arm.
 
     One servo process runs the cycles of every arm on one real-time thread:
@@ -103,18 +141,19 @@ def children(service: ServiceSpec, settings: UpSettings) -> list[Child]:
     """
     arms = settings.arms
     if service.service is Service.SERVO and len(arms) > 1:
-        argv = child_argv(service, arms[0], settings)
+        argv = child_argv(service, arms[0], settings, bus)
         for a in arms[1:]:
             argv += ["--with-arm", f"{a.arm}:{a.robot}"]
         return [Child(label(service.name, ",".join(a.arm for a in arms)), argv)]
-    return [Child(label(service.name, a.arm), child_argv(service, a, settings)) for a in arms]
+    return [Child(label(service.name, a.arm), child_argv(service, a, settings, bus)) for a in arms]
 
 
 class Readiness:
     """Prints the one ready line once every expected service is alive; warns while not."""
 
-    def __init__(self, settings: UpSettings, presence: Presence) -> None:
+    def __init__(self, settings: UpSettings, presence: Presence, gateway_joined: Callable[[], bool]) -> None:
         self.presence = presence
+        self.gateway_joined = gateway_joined
         self.expected = [(a.arm, s.name) for a in settings.arms for s in SERVICES]
         self.ready = False
         arms = "; ".join(f"{a.arm} ({a.robot}): {', '.join(s.name for s in SERVICES)}"
@@ -123,7 +162,9 @@ class Readiness:
         self._warn_at = time.monotonic() + READY_TIMEOUT
 
     def missing(self) -> list[tuple[str, str]]:
-        return [k for k in self.expected if k not in self.presence.alive]
+        """``(arm, service)`` not alive yet; ``("", "client gateway")`` while the gateway has not joined."""
+        missing = [k for k in self.expected if k not in self.presence.alive]
+        return missing if self.ready or self.gateway_joined() else [*missing, ("", GATEWAY_LABEL)]
 
     def poll(self) -> None:
         expected = set(self.expected)
@@ -143,7 +184,7 @@ class Readiness:
         elif missing and not self.ready and time.monotonic() >= self._warn_at:
             self._warn_at += READY_TIMEOUT
             log.warning("not ready after %.0f s; still waiting for %s", READY_TIMEOUT,
-                        ", ".join(label(s, a) for a, s in missing))
+                        ", ".join(label(s, a) if a else s for a, s in missing))
 
 
 def start_order() -> list[ServiceSpec]:
@@ -154,16 +195,22 @@ def start_order() -> list[ServiceSpec]:
 
 def run_up(settings: UpSettings, signals: StopSignals) -> int:
     """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
-    with open_router(settings.router) as session:
-        # The router carries the 1 kHz position stream from planner to servo: starved by
+    with private_bus(bool(settings.router.secure)) as bus, open_router(bus_settings(settings, bus)) as session:
+        # The bus carries the 1 kHz position stream from planner to servo: starved by
         # normal-priority work, it would let the servo FIFO run dry.
         realtime_process(ROUTER_RT_PRIORITY, "router", skip_caller=True)
+        gateway = gateway_settings(settings, bus)
         logs = LogPrinter(session, any_arm_log())
         presence = Presence(session)
-        readiness = Readiness(settings, presence)
-        supervisor = Supervisor([children(s, settings) for s in start_order()])
-        log.info("router listening on %s; starting %d service process(es)",
-                 ", ".join(settings.router.endpoints()), len(supervisor.children))
+
+        def gateway_joined() -> bool:  # evidence, not a token: its link to the bus is up
+            return gateway.gateway_ids[0] in {str(z) for z in session.info.routers_zid()}
+
+        readiness = Readiness(settings, presence, gateway_joined)
+        # The gateway first, so that it stops last: clients see the services leave.
+        supervisor = Supervisor([[gateway_child(settings, bus)], *[children(s, settings, bus) for s in start_order()]])
+        log.info("cell bus on %s; client gateway on %s; starting %d process(es)", ", ".join(bus_settings(
+            settings, bus).endpoints()), ", ".join(gateway.endpoints()), len(supervisor.children))
         demos: list[subprocess.Popen] = []
         try:
             if not signals.stop.is_set():  # a Ctrl-C while the router opened

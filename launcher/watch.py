@@ -75,7 +75,9 @@ class _Printer(abc.ABC):
     """Prints the lines made of what arrives on ``key``; polled by :meth:`drain`."""
 
     def __init__(self, session: zenoh.Session, key: str) -> None:
-        self._sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(_QUEUE))
+        # A ring, not a FIFO: a full FIFO would hold up the session's thread that delivers into it, and
+        # in the launcher that is the cell bus's own router: a printer behind loses its oldest lines.
+        self._sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(_QUEUE))
 
     @abc.abstractmethod
     def line(self, key: str, payload: bytes, encoding: Encoding) -> str | None:

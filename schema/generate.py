@@ -17,6 +17,7 @@ from typing import Any
 
 from . import alarms, channels, keys, operations, wire_types
 from .codes import AlarmCode, AlarmType, ReturnCode, StateBit
+from .traffic import Traffic
 from .wire_types import Member, StructType
 
 SCHEMA_FILE = Path(__file__).with_name("jara_arm.schema.json")
@@ -65,7 +66,9 @@ def build() -> dict[str, Any]:
         "(none: MessagePack); an empty request has no arguments. A JSON request gets a JSON reply. "
         "Every query gets exactly one reply {id, comment, <out params>}.",
         "$defs": defs,
-        "x-keys": [{**dataclasses.asdict(row), "payload": row.payload.replace("`", ""), "encoding": row.encoding.value}
+        "x-keys": [{**dataclasses.asdict(row), "payload": row.payload.replace("`", ""), "encoding": row.encoding.value,
+                    "traffic": {"class": row.traffic.name.lower(), "priority": row.traffic.value.priority,
+                                "congestion_control": row.traffic.value.congestion}}
                    for row in keys.KEY_TABLE],
         "x-services": [s.value for s in keys.Service],
         "x-return-codes": {c.name: int(c) for c in ReturnCode},
@@ -92,9 +95,14 @@ def render() -> str:
 
 def key_table_markdown() -> str:
     """The README's key table, from ``keys.KEY_TABLE``."""
-    lines = ["| key expression | kind | by | payload | encoding |", "| --- | --- | --- | --- | --- |"]
-    lines += [f"| `{r.key}` | {r.kind} | {r.by} | {r.payload} | {_encoding_cell(r.encoding)} |" for r in keys.KEY_TABLE]
+    lines = ["| key expression | kind | by | payload | encoding | traffic |", "| --- | --- | --- | --- | --- | --- |"]
+    lines += [f"| `{r.key}` | {r.kind} | {r.by} | {r.payload} | {_encoding_cell(r.encoding)} | {_traffic_cell(r.traffic)} |"
+              for r in keys.KEY_TABLE]
     return "\n".join(lines)
+
+
+def _traffic_cell(traffic: Traffic) -> str:
+    return f"{traffic.name.lower()}: `{traffic.value.priority}`, `{traffic.value.congestion}`"
 
 
 def _encoding_cell(encoding: keys.KeyEncoding) -> str:

@@ -20,6 +20,7 @@ from typing import TypeVar, cast
 from .encoding import Encoding
 from .errors import JaraArmError
 from .operations import Interface, operation
+from .traffic import Traffic
 
 PREFIX = "JARA_ARM"
 DEFAULT_ARM = "arm0"
@@ -71,18 +72,20 @@ class KeyInfo:
     by: str
     payload: str
     encoding: KeyEncoding
+    #: the priority and congestion control its messages travel with (schema/traffic.py)
+    traffic: Traffic
 
 
 _F = TypeVar("_F", bound=Callable[..., str])
 
 
-def _key(kind: str, by: str, payload: str, encoding: KeyEncoding,
+def _key(kind: str, by: str, payload: str, encoding: KeyEncoding, traffic: Traffic,
          examples: tuple[tuple[object, ...], ...] = ((None,),)) -> Callable[[_F], _F]:
     """Marks an :class:`ArmKeys` member as a key of the table (:data:`KEY_TABLE`); ``examples``
     are the arguments (besides ``self``) of its rows, ``None`` standing for a ``<param>`` chunk."""
 
     def mark(fn: _F) -> _F:
-        fn.__key_rows__ = (kind, by, payload, encoding, examples)  # type: ignore[attr-defined]
+        fn.__key_rows__ = (kind, by, payload, encoding, traffic, examples)  # type: ignore[attr-defined]
         return fn
 
     return mark
@@ -104,7 +107,7 @@ class ArmKeys:
 
     # -- public contract (WIRE.md) -------------------------------------------------
     @_key('queryable', 'command', 'request map → reply map', KeyEncoding.AS_REQUEST,
-          examples=((Interface.COMMON, None), (Interface.MIDDLE, None), (Interface.EXT, None)))
+          Traffic.REPLY, examples=((Interface.COMMON, None), (Interface.MIDDLE, None), (Interface.EXT, None)))
     def interface(self, interface: Interface, op: str | None = None) -> str:
         """``Common/<op>``, ``Middle/<op>`` or ``Ext/<op>`` (command service; ``Ext``: model-specific
         extensions outside the IDL); ``op=None`` gives ``/*``."""
@@ -112,7 +115,7 @@ class ArmKeys:
             operation(interface, op)
         return f"{self.root}/{interface.value}/{op or '*'}"
 
-    @_key('queryable', 'servo', 'request map → reply map', KeyEncoding.AS_REQUEST)
+    @_key('queryable', 'servo', 'request map → reply map', KeyEncoding.AS_REQUEST, Traffic.REPLY)
     def servo_common(self, op: str | None = None) -> str:
         """``Servo/Common/<op>`` (servo service); ``op=None`` gives ``/*``."""
         if op is not None:
@@ -120,51 +123,51 @@ class ArmKeys:
         return f"{self.root}/Servo/{Interface.COMMON.value}/{op or '*'}"
 
     @property
-    @_key('subscriber', 'servo', '`TimedJointPos`, SyncFIFO', KeyEncoding.MSGPACK)
+    @_key('subscriber', 'servo', '`TimedJointPos`, SyncFIFO', KeyEncoding.MSGPACK, Traffic.STREAM)
     def pos_cmd(self) -> str:
         """``TimedJointPos`` commands into the servo's SyncFIFO."""
         return f"{self.root}/Servo/posCmd"
 
     @property
     @_key('subscriber (internal)', 'servo', "`PositionBlock` from the planner: several cycles' commands into the same SyncFIFO",
-          KeyEncoding.MSGPACK)
+          KeyEncoding.MSGPACK, Traffic.STREAM)
     def pos_block(self) -> str:
         """``PositionBlock``: the planner's commands into the same SyncFIFO, a few cycles per message."""
         return f"{self.root}/Servo/posBlock"
 
     @property
-    @_key('publisher', 'servo', '`TimedJointPos`, every cycle', KeyEncoding.MSGPACK)
+    @_key('publisher', 'servo', '`TimedJointPos`, every cycle', KeyEncoding.MSGPACK, Traffic.FEEDBACK)
     def pos_feedback(self) -> str:
         """``TimedJointPos`` measured every cycle by the servo."""
         return f"{self.root}/Servo/posFeedback"
 
     @property
-    @_key('publisher', 'command', '`StateMessage` `{state, ...}` on every change', KeyEncoding.JSON)
+    @_key('publisher', 'command', '`StateMessage` `{state, ...}` on every change', KeyEncoding.JSON, Traffic.STATE)
     def state(self) -> str:
         return f"{self.root}/state"
 
     @property
-    @_key('publisher', 'alarm monitor', '`AlarmEvent` `{event, alarm}`', KeyEncoding.JSON)
+    @_key('publisher', 'alarm monitor', '`AlarmEvent` `{event, alarm}`', KeyEncoding.JSON, Traffic.CONTROL)
     def alarm(self) -> str:
         return f"{self.root}/alarm"
 
     @property
-    @_key('subscriber', 'every service that moves the arm', 'any put', KeyEncoding.NONE)
+    @_key('subscriber', 'every service that moves the arm', 'any put', KeyEncoding.NONE, Traffic.SAFETY)
     def estop(self) -> str:
         return f"{self.root}/estop"
 
-    @_key('publisher', 'every service', '`LogRecord` `{t, level, service, msg, logger}`', KeyEncoding.JSON)
+    @_key('publisher', 'every service', '`LogRecord` `{t, level, service, msg, logger}`', KeyEncoding.JSON, Traffic.INFO)
     def log(self, service: Service | None = None) -> str:
         return f"{self.root}/log/{service or '*'}"
 
-    @_key('liveliness token', 'every service', '—', KeyEncoding.NONE)
+    @_key('liveliness token', 'every service', '—', KeyEncoding.NONE, Traffic.SAFETY)
     def alive(self, service: Service | None = None) -> str:
         return f"{self.root}/alive/{service or '*'}"
 
     @_key('publisher', 'the service answering the call',
           '`CallTrace` `{t, request, reply}` of every call answered on `<served>/<op>`, only while something '
           'subscribes', KeyEncoding.JSON,
-          examples=((Interface.COMMON.value, None), (Interface.MIDDLE.value, None), (Interface.EXT.value, None),
+          Traffic.TRACE, examples=((Interface.COMMON.value, None), (Interface.MIDDLE.value, None), (Interface.EXT.value, None),
                     (f"Servo/{Interface.COMMON.value}", None), (f"Monitor/{Interface.COMMON.value}", None)))
     def trace(self, served: str, op: str | None = None) -> str:
         """``trace/<served>/<op>``: the calls answered on ``<served>/<op>`` of this arm, ``served`` being
@@ -200,51 +203,51 @@ class ArmKeys:
     # -- internal, between services (documented in the generated schema) ----------
     @property
     @_key('publisher (internal)', 'servo', '`ServoStatus`, every 10 cycles (every 100, and on any change, while settled at rest)',
-          KeyEncoding.MSGPACK)
+          KeyEncoding.MSGPACK, Traffic.CONTROL)
     def servo_status(self) -> str:
         """``ServoStatus`` from the servo at a few hundred Hz: FIFO, velocities, efforts."""
         return f"{self.root}/Servo/status"
 
     @property
     @_key('publisher + queryable (internal)', 'servo', '`ServoWorld` (robot model, obstacles) every second; a get '
-          'answers it too', KeyEncoding.JSON)
+          'answers it too', KeyEncoding.JSON, Traffic.INFO)
     def servo_world(self) -> str:
         """``ServoWorld`` from the servo: its robot model and obstacles, for viewers (every second, and to a get)."""
         return f"{self.root}/Servo/world"
 
     @property
-    @_key('queryable (internal)', 'planner', '`MotionRequest` → `PlanReply`', KeyEncoding.AS_REQUEST)
+    @_key('queryable (internal)', 'planner', '`MotionRequest` → `PlanReply`', KeyEncoding.AS_REQUEST, Traffic.REPLY)
     def planner_plan(self) -> str:
         """Queryable of the planner: ``MotionRequest`` -> ``PlanReply`` (schema.planner)."""
         return f"{self.root}/Planner/plan"
 
     @property
-    @_key('queryable (internal)', 'planner', '`ControlRequest` → `ControlReply`', KeyEncoding.AS_REQUEST)
+    @_key('queryable (internal)', 'planner', '`ControlRequest` → `ControlReply`', KeyEncoding.AS_REQUEST, Traffic.REPLY)
     def planner_control(self) -> str:
         """Queryable of the planner: ``ControlRequest`` -> ``{id, comment}``."""
         return f"{self.root}/Planner/control"
 
     @property
-    @_key('publisher (internal)', 'planner', '`PlannerProgress`', KeyEncoding.MSGPACK)
+    @_key('publisher (internal)', 'planner', '`PlannerProgress`', KeyEncoding.MSGPACK, Traffic.CONTROL)
     def planner_progress(self) -> str:
         """``PlannerProgress`` from the planner, on every change and at 10 Hz."""
         return f"{self.root}/Planner/progress"
 
     @property
     @_key('publisher (internal)', 'planner', '`PlannedPath`: the control point polyline of each accepted motion',
-          KeyEncoding.MSGPACK)
+          KeyEncoding.MSGPACK, Traffic.INFO)
     def planner_path(self) -> str:
         """``PlannedPath`` from the planner, once per accepted motion (not on the streaming thread)."""
         return f"{self.root}/Planner/path"
 
     @property
-    @_key('publisher (internal)', 'servo', '`LoopHealth`, ~1 Hz', KeyEncoding.JSON)
+    @_key('publisher (internal)', 'servo', '`LoopHealth`, ~1 Hz', KeyEncoding.JSON, Traffic.INFO)
     def servo_health(self) -> str:
         """``LoopHealth`` from the servo about once a second: lateness, overruns, underruns."""
         return f"{self.root}/Servo/health"
 
     @_key('queryable (internal)', 'alarm monitor', '`getActiveAlarm`, `clearAlarms` (Common table); other operations NOT_IMPLEMENTED',
-          KeyEncoding.AS_REQUEST)
+          KeyEncoding.AS_REQUEST, Traffic.REPLY)
     def monitor_common(self, op: str | None = None) -> str:
         """``Monitor/Common/<op>`` (alarm monitor): ``getActiveAlarm`` and ``clearAlarms``."""
         if op is not None:
@@ -253,34 +256,34 @@ class ArmKeys:
 
     @property
     @_key('publisher + queryable (internal)', 'alarm monitor', '`AlarmList` on every change and at 2 Hz',
-          KeyEncoding.JSON)
+          KeyEncoding.JSON, Traffic.STATE)
     def monitor_alarms(self) -> str:
         """``AlarmList`` from the alarm monitor on every change and at 2 Hz; a get answers it too."""
         return f"{self.root}/Monitor/alarms"
 
     @property
     @_key('subscriber (internal)', 'alarm monitor', '`AlarmReport` from the services: raised, or its cause gone',
-          KeyEncoding.MSGPACK)
+          KeyEncoding.MSGPACK, Traffic.SAFETY)
     def monitor_report(self) -> str:
         """``AlarmReport`` from any service to the alarm monitor: raised, or its cause gone."""
         return f"{self.root}/Monitor/report"
 
     @property
     @_key('queryable (internal)', 'servo', 'the `AlarmList` the servo holds: what a restarted monitor takes over',
-          KeyEncoding.MSGPACK)
+          KeyEncoding.MSGPACK, Traffic.REPLY)
     def alarm_copy(self) -> str:
         """Queryable of the servo: the monitor's newest ``AlarmList`` as the servo holds it (less
         what it cleared without a monitor), for an alarm monitor that restarts."""
         return f"{self.root}/Monitor/copy"
 
     @property
-    @_key('publisher (internal)', 'command', '`MotionSettings` on change and at 4 Hz', KeyEncoding.JSON)
+    @_key('publisher (internal)', 'command', '`MotionSettings` on change and at 4 Hz', KeyEncoding.JSON, Traffic.STATE)
     def command_settings(self) -> str:
         """``MotionSettings`` from the command service on change and at 4 Hz."""
         return f"{self.root}/Command/settings"
 
     @_key('publisher (internal)', 'every service', '`Heartbeat {seq, stuck}` every heartbeat period (100 ms same-host)',
-          KeyEncoding.MSGPACK)
+          KeyEncoding.MSGPACK, Traffic.SAFETY)
     def heartbeat(self, service: Service | None = None) -> str:
         """``Heartbeat`` from every service every ``Health.heartbeat_period`` (services/runtime/timing.py); ``None`` gives ``/*``."""
         return f"{self.root}/heartbeat/{service or '*'}"
@@ -354,18 +357,19 @@ def _key_table() -> tuple[KeyInfo, ...]:
     sample = ArmKeys("ARM")
     for name, member in vars(ArmKeys).items():
         getter = member.fget if isinstance(member, property) else member
-        marked: tuple[str, str, str, KeyEncoding, tuple[tuple[object, ...], ...]] | None = getattr(
+        marked: tuple[str, str, str, KeyEncoding, Traffic, tuple[tuple[object, ...], ...]] | None = getattr(
             getter, "__key_rows__", None)
         if marked is None:
             continue
         fn = cast(Callable[..., str], getter)  # marked, so _key took it: a Callable[..., str]
-        kind, by, payload, encoding, examples = marked
+        kind, by, payload, encoding, traffic, examples = marked
         params = [p for p in inspect.signature(fn).parameters if p != "self"]
         for args in examples:
             key: str = getattr(sample, name) if isinstance(member, property) else getattr(sample, name)(*args)
             if params and args[-1] is None:  # the wildcard chunk names its parameter
                 key = key[:-1] + f"<{params[-1]}>"
-            rows.append(KeyInfo(key.replace(f"{PREFIX}/ARM/", f"{PREFIX}/<arm>/", 1), kind, by, payload, encoding))
+            rows.append(KeyInfo(key.replace(f"{PREFIX}/ARM/", f"{PREFIX}/<arm>/", 1), kind, by, payload, encoding,
+                                traffic))
     return tuple(rows)
 
 
@@ -385,6 +389,11 @@ def key_info(key: str) -> KeyInfo:
         if pattern.fullmatch(key):
             return row
     raise JaraArmError(f"not a key of the key table: {key!r}")
+
+
+def traffic_of(key: str) -> Traffic:
+    """The traffic class every message on ``key`` travels with (its publisher's, its queryable's replies)."""
+    return key_info(key).traffic
 
 
 def encoding_of(key: str) -> Encoding:

@@ -106,8 +106,8 @@ class Monitor:
         self._status = enter(session.declare_subscriber(keys.servo_status, fifo(256)))
         self._heartbeats = enter(session.declare_subscriber(keys.heartbeat(), fifo(1024)))
         self._settings_sub = enter(session.declare_subscriber(keys.command_settings, ring(1)))
-        self._event_pub = enter(Publication(session, keys.alarm, express=True))
-        self._list_pub = enter(Publication(session, keys.monitor_alarms, express=True))
+        self._event_pub = enter(Publication(session, keys.alarm))
+        self._list_pub = enter(Publication(session, keys.monitor_alarms))
         self._list_q = enter(session.declare_queryable(keys.monitor_alarms, fifo(64)))
         self._reactions = Reactions(session, keys)
         self._calls: collections.deque[tuple[Callable[[], object], concurrent.futures.Future]] = \

@@ -76,12 +76,10 @@ class PlannerService:
         self.model = model = ctx.model
         self.planner = planner
         self.heads = heads  # the early starts' heads, planned in this process beside the child
-        # Every command counts (SyncFIFO): block rather than drop when the link is congested.
-        # The blocks are MessagePack built by hand (messages.position_block_payload), fast.
-        self._cmd_pub = ctx.enter(Publication(session, keys.pos_block, Encoding.MSGPACK, express=True,
-                                              congestion_control=zenoh.CongestionControl.BLOCK,
-                                              priority=zenoh.Priority.REAL_TIME))
-        self._progress_pub = ctx.enter(Publication(session, keys.planner_progress, express=True))
+        # Every command counts (SyncFIFO): its traffic class (stream) blocks rather than drops, on the
+        # cell bus only. The blocks are MessagePack built by hand (messages.position_block_payload), fast.
+        self._cmd_pub = ctx.enter(Publication(session, keys.pos_block, Encoding.MSGPACK))
+        self._progress_pub = ctx.enter(Publication(session, keys.planner_progress))
         self._path_pub = ctx.enter(Publication(session, keys.planner_path))  # for viewers, low rate
         self._status_sub = ctx.enter(session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(1)))
         self.streamer = Streamer(model.dof, model.cmd_cycle, self._cmd_pub.put, self._put_progress,

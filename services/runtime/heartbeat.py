@@ -76,7 +76,7 @@ class Heartbeat:
         self._priority = priority
         self._pulses: list[Pulse] = []
         self._entities = Entities()
-        self._pub = self._entities.enter_context(Publication(session, keys.heartbeat(service), express=True))
+        self._pub = self._entities.enter_context(Publication(session, keys.heartbeat(service)))
         self._stop = threading.Event()
         self._seq = 0
         self._left = False

@@ -27,7 +27,7 @@ from jara_arm.schema.operations import Operation
 from .entities import Entities
 from .timing import DEADLINE_GRACE
 from .trace import CallTracer
-from .wire import label
+from .wire import reply
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ class QueryServer:
                 # JSON text is JSON whatever its label: generic tools send it unlabelled
                 encoding = Encoding.of_request(payload, query.encoding)
                 key, body = self._answer(str(query.key_expr), payload, encoding)
-                query.reply(key, body, encoding=label(encoding))
+                reply(query, key, body, encoding)
                 self._replied(key, payload, encoding, body)
             except Exception:
                 log.exception("could not reply to %s", query.key_expr)

@@ -21,10 +21,10 @@ import zenoh
 from jara_arm.schema import codec
 from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.errors import JaraArmError
-from jara_arm.schema.keys import ArmKeys, arm_of, encoding_of
+from jara_arm.schema.keys import ArmKeys, arm_of, encoding_of, traffic_of
 from jara_arm.schema.messages import CALL_TRACE, CallTrace
 
-from .wire import label
+from .wire import label, qos
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +75,7 @@ class CallTracer:
                 return
             trace = CallTrace(time.time(), wire_map(request, encoding), wire_map(reply, encoding))
             payload = codec.encode_message(CALL_TRACE, trace, self._encoding)
-            self._session.put(key, payload, encoding=self._label, congestion_control=zenoh.CongestionControl.DROP)
+            self._session.put(key, payload, encoding=self._label, **qos(traffic_of(key)))
         except Exception as exc:  # a trace must never cost a reply, nor the service (closing: undeclared)
             log.debug("no trace of %s: %s", answered, exc)
 

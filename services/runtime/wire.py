@@ -3,7 +3,9 @@
 Every publication and reply of the system carries its encoding
 (``application/json`` or ``application/msgpack``), so that any tool can tell
 which it got; a key's encoding is declared once, in ``schema/keys.py``
-(:func:`~jara_arm.schema.keys.encoding_of`).
+(:func:`~jara_arm.schema.keys.encoding_of`), and so is its traffic class (priority and
+congestion control, :func:`~jara_arm.schema.keys.traffic_of`), which every publisher and
+reply here is declared with.
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ import zenoh
 from jara_arm.schema import codec
 from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.errors import JaraArmError
-from jara_arm.schema.keys import encoding_of
+from jara_arm.schema.keys import encoding_of, traffic_of
+from jara_arm.schema.traffic import Traffic
 from jara_arm.schema.wire_types import StructType
 
 T = TypeVar("T")
@@ -29,6 +32,26 @@ def label(encoding: Encoding) -> zenoh.Encoding:
     return _LABELS[encoding]
 
 
+_PRIORITIES = {"real_time": zenoh.Priority.REAL_TIME, "interactive_high": zenoh.Priority.INTERACTIVE_HIGH,
+               "interactive_low": zenoh.Priority.INTERACTIVE_LOW, "data_high": zenoh.Priority.DATA_HIGH,
+               "data": zenoh.Priority.DATA, "data_low": zenoh.Priority.DATA_LOW,
+               "background": zenoh.Priority.BACKGROUND}
+_CONGESTION = {"block": zenoh.CongestionControl.BLOCK, "drop": zenoh.CongestionControl.DROP}
+
+
+def qos(traffic: Traffic) -> dict[str, Any]:
+    """Zenoh's ``priority``, ``congestion_control`` and ``express`` options of ``traffic``."""
+    c = traffic.value
+    return {"priority": _PRIORITIES[c.priority], "congestion_control": _CONGESTION[c.congestion],
+            "express": c.express}
+
+
+def reply(query: zenoh.Query, key: str, body: bytes, encoding: Encoding) -> None:
+    """Answer ``query`` on ``key`` with ``body`` (in ``encoding``), labelled, with the key's traffic class:
+    a reply that meets a full queue is dropped rather than stall whoever routes it."""
+    query.reply(key, body, encoding=label(encoding), **qos(traffic_of(key)))
+
+
 def decode_sample(kind: StructType[T], sample: zenoh.Sample) -> T:
     """A sample's message, decoded by its encoding label (strict: WireError naming the field)."""
     value: T = codec.decode_message(kind, sample.payload.to_bytes(), Encoding.of(sample.encoding))
@@ -38,11 +61,12 @@ def decode_sample(kind: StructType[T], sample: zenoh.Sample) -> T:
 def reply_message(query: zenoh.Query, key: str, kind: StructType[T], value: T) -> None:
     """Answer ``query`` with ``value`` in ``key``'s encoding, labelled."""
     encoding = encoding_of(key)
-    query.reply(key, codec.encode_message(kind, value, encoding), encoding=label(encoding))
+    reply(query, key, codec.encode_message(kind, value, encoding), encoding)
 
 
 class Publication:
-    """A publisher of one key whose samples are in the key's encoding and labelled with it.
+    """A publisher of one key whose samples are in the key's encoding and labelled with it, sent with the
+    key's traffic class (``options`` override it: a test's or a tool's own choice).
 
     ``expect`` is for a publisher that builds its payloads by hand in one
     encoding (the servo's MessagePack fast paths): it refuses to start if the
@@ -54,7 +78,9 @@ class Publication:
         self.encoding = encoding_of(key)
         if expect is not None and expect is not self.encoding:
             raise JaraArmError(f"{key} is {self.encoding.value} (schema/keys.py); this publisher writes {expect.value}")
-        self._publisher = session.declare_publisher(key, encoding=label(self.encoding), **options)
+        # The key's traffic class unless told otherwise.
+        self._publisher = session.declare_publisher(key, encoding=label(self.encoding),
+                                                    **(qos(traffic_of(key)) | options))
 
     @property
     def publisher(self) -> zenoh.Publisher:

@@ -143,14 +143,14 @@ class ServoLoop:
         self._alarms_sub = enter(session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256)))
         self._alarm_copy = AlarmListCopy(session, keys)
         self._monitor = MonitorWatch(session, keys, health)  # nobody else can watch the watcher
-        self._report_pub = enter(Publication(session, keys.monitor_report, express=True))
+        self._report_pub = enter(Publication(session, keys.monitor_report))
         # The feedback and the status are MessagePack built by hand (messages.*_payload), fast.
-        self._fb_pub = enter(Publication(session, keys.pos_feedback, Encoding.MSGPACK, express=True))
+        self._fb_pub = enter(Publication(session, keys.pos_feedback, Encoding.MSGPACK))
         # The 1 kHz feedback is encoded only while someone subscribes (none of our services do).
         self._fb_matching = enter(self._fb_pub.publisher.declare_matching_listener(zenoh.handlers.FifoChannel(64)))
         self._fb_wanted = self._fb_pub.publisher.matching_status.matching
         self._fb_put = self._fb_pub.publisher.put  # every cycle: the labelled publisher's put, no wrapper call
-        self._status_pub = enter(Publication(session, keys.servo_status, Encoding.MSGPACK, express=True))
+        self._status_pub = enter(Publication(session, keys.servo_status, Encoding.MSGPACK))
         self._health_pub = enter(Publication(session, keys.servo_health))
         self._stats = _Stats()
         self._period_ns = model.cmd_cycle_ms * 1_000_000

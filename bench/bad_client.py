@@ -1,0 +1,78 @@
+"""A client that behaves badly, as users' tools do: slow, frozen or flooding. Plain Zenoh only.
+
+    python bench/bad_client.py slow    --connect EP [--key 'JARA_ARM/**'] [--delay-ms 20]
+    python bench/bad_client.py frozen  --connect EP [--key 'JARA_ARM/*/Servo/posFeedback']
+    python bench/bad_client.py flood   --connect EP [--key 'JARA_ARM/arm0/Common/getState']
+    (every kind also takes --config FILE: a Zenoh configuration, e.g. a secure cell identity's .json5)
+
+- ``slow``: subscribes to ``--key`` and spends ``--delay-ms`` in each sample's callback, on Zenoh's own
+  thread, as a GUI or logger on a busy PC does (the very thing the Zenoh guide says not to do).
+- ``frozen``: subscribes to ``--key`` and then reads nothing: freeze it with ``kill -STOP`` (a process held
+  in a debugger, a laptop whose lid closed) and its socket fills; ``kill -CONT`` lets it go on.
+- ``flood``: one query after another on ``--key``, as fast as the replies come.
+
+Prints ``bad client ready`` once its subscription or first reply is in place, then, every second,
+``bad client: N samples`` (or replies). Runs until killed. Not part of the package: users' tools
+import nothing of ours, and neither does this.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+
+import zenoh
+
+
+def session(args: argparse.Namespace) -> zenoh.Session:
+    conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([args.connect]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(conf)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("kind", choices=("slow", "frozen", "flood"))
+    ap.add_argument("--connect", required=True, metavar="ENDPOINT")
+    ap.add_argument("--config", metavar="FILE")
+    ap.add_argument("--key", help="default: JARA_ARM/** (slow), JARA_ARM/*/Servo/posFeedback (frozen), "
+                    "JARA_ARM/arm0/Common/getState (flood)")
+    ap.add_argument("--delay-ms", type=float, default=20.0, help="slow: time spent per sample [ms]")
+    args = ap.parse_args()
+    key = args.key or {"slow": "JARA_ARM/**", "frozen": "JARA_ARM/*/Servo/posFeedback",
+                       "flood": "JARA_ARM/arm0/Common/getState"}[args.kind]
+    count = [0]
+    with session(args) as s:
+        if args.kind == "flood":
+            print("bad client ready", flush=True)
+            last = time.monotonic()
+            while True:
+                for _ in s.get(key, payload=b"{}", timeout=10.0):
+                    count[0] += 1
+                if time.monotonic() - last >= 1.0:
+                    last = time.monotonic()
+                    print(f"bad client: {count[0]} replies", flush=True)
+
+        def slow(_: zenoh.Sample) -> None:
+            count[0] += 1
+            time.sleep(args.delay_ms / 1e3)
+
+        def frozen(_: zenoh.Sample) -> None:
+            count[0] += 1
+
+        sub = s.declare_subscriber(key, slow if args.kind == "slow" else frozen)
+        print("bad client ready", flush=True)
+        stop = threading.Event()
+        while not stop.wait(1.0):
+            print(f"bad client: {count[0]} samples", flush=True)
+        sub.undeclare()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,100 @@
+"""The cell bus and the client gateway: no client shares a dispatch queue with the control path.
+
+A Zenoh router forwards each message to the sessions that want it one after the other, on the
+thread that received it (eclipse-zenoh/zenoh#2585, "subscriber sessions share fate"): a session
+whose queue is full holds that thread up (``wait_before_drop`` for a droppable message, up to
+``wait_before_close`` for a blocking one), and with it every other session's messages from the same
+sender. With services and user tools on one router, one slow GUI stalled the heartbeats and the
+position stream of an arm. So ``jara-arm up`` runs two routers:
+
+- the **cell bus**, in the launcher process (real-time priority): only the cell's own services join
+  it, on a private endpoint (a Unix socket in a directory only the cell's user can open; in a
+  secure cell a TLS port on loopback). Everything that keeps an arm safe and fed travels here.
+- the **client gateway**, a process of its own at normal priority, listening on ``--listen``: every
+  client joins it, and it joins the bus as one more router. It turns every publication it forwards
+  into best effort (``drop``) and drops at once what a client's full queue cannot take; a client
+  stuck so long that a blocking message (a declaration) cannot reach it for
+  :data:`GATEWAY_WAIT_BEFORE_CLOSE` is disconnected. So the worst a client can do is lose samples of
+  its own and slow other clients; the bus sees one reader, the gateway, which never waits on anyone.
+
+On the bus, the only blocking publications (the planner's position stream, ``Traffic.STREAM``) are
+turned into best effort on their way to the gateway (by the gateway's Zenoh id), so a gateway that
+falls behind costs the bus nothing but those samples. Replies are best effort everywhere
+(``Traffic.REPLY``): Zenoh cannot overwrite a reply's congestion control, so the services reply so.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import socket
+import tempfile
+from collections.abc import Iterator, Sequence
+
+import zenoh
+
+#: The gateway's Zenoh id (hex of "jaragate"): the bus knows its link by it. One gateway per cell bus
+#: by default; give each further gateway its own (``--gateway-id``) and tell the bus every one.
+GATEWAY_ZID = "6a61726167617465"
+#: How long a gateway waits for room in a client's queue before dropping a droppable message [µs].
+#: Zero: a client that cannot take a sample loses it, and the gateway goes on to the next one at once.
+GATEWAY_WAIT_BEFORE_DROP = 0
+#: The same for a message too big for one batch (its fragments) [µs]: the world model, once a second.
+GATEWAY_WAIT_FRAGMENTS = 1_000
+#: How long a gateway waits to send a blocking message (a declaration) to a client before it closes that
+#: client's session [µs]: a client whose queue stays full this long is stuck (stopped, frozen, gone),
+#: and while the gateway waits it forwards nothing. Zenoh's default is 5 s.
+GATEWAY_WAIT_BEFORE_CLOSE = 500_000
+#: How long the bus waits for room in a link's queue before dropping a droppable message [µs]. The
+#: services drain their links at once; a queue that is full is a session that does not read (the
+#: gateway starved, a service stopped), and waiting on it would stall the sender's other messages.
+BUS_WAIT_BEFORE_DROP = 50
+
+
+def gateway_config(conf: zenoh.Config, zid: str = GATEWAY_ZID) -> None:
+    """Make ``conf`` (a router's) a client gateway's: best effort to every client, never waiting on one."""
+    conf.insert_json5("id", json.dumps(zid))
+    queue = "transport/link/tx/queue/congestion_control"
+    conf.insert_json5(f"{queue}/drop/wait_before_drop", str(GATEWAY_WAIT_BEFORE_DROP))
+    conf.insert_json5(f"{queue}/drop/max_wait_before_drop_fragments", str(GATEWAY_WAIT_FRAGMENTS))
+    conf.insert_json5(f"{queue}/block/wait_before_close", str(GATEWAY_WAIT_BEFORE_CLOSE))
+    conf.insert_json5("qos/network", json.dumps([
+        {"id": "clients-best-effort", "messages": ["put", "delete"], "flows": ["egress"],
+         "overwrite": {"congestion_control": "drop"}}]))
+
+
+def bus_config(conf: zenoh.Config, gateways: Sequence[str] = (GATEWAY_ZID,)) -> None:
+    """Make ``conf`` (a router's) the cell bus's: its blocking stream reaches ``gateways`` as best effort."""
+    queue = "transport/link/tx/queue/congestion_control"
+    conf.insert_json5(f"{queue}/drop/wait_before_drop", str(BUS_WAIT_BEFORE_DROP))
+    if gateways:
+        conf.insert_json5("qos/network", json.dumps([
+            {"id": "to-gateways-best-effort", "zids": list(gateways), "messages": ["put", "delete"],
+             "flows": ["egress"], "overwrite": {"congestion_control": "drop"}}]))
+
+
+def _free_loopback_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def private_bus(secure: bool) -> Iterator[str]:
+    """A private endpoint for the cell bus, for as long as the context lasts.
+
+    Open cell: a Unix socket in a fresh directory of mode 0700 (only this user's processes can join;
+    no TCP client can reach it). Secure cell: a free TLS port on loopback, where the cell's
+    certificates and roles apply as on every other link.
+    """
+    if secure:
+        yield f"tls/127.0.0.1:{_free_loopback_port()}"
+        return
+    directory = tempfile.mkdtemp(prefix="jara-arm-bus-")
+    os.chmod(directory, 0o700)
+    try:
+        yield f"unixsock-stream/{directory}/bus.sock"
+    finally:
+        shutil.rmtree(directory, ignore_errors=True)
