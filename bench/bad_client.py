@@ -2,14 +2,15 @@
 
     python bench/bad_client.py slow    --connect EP [--key 'JARA_ARM/**'] [--delay-ms 20]
     python bench/bad_client.py frozen  --connect EP [--key 'JARA_ARM/*/Servo/posFeedback']
-    python bench/bad_client.py flood   --connect EP [--key 'JARA_ARM/arm0/Common/getState']
+    python bench/bad_client.py flood   --connect EP [--key 'JARA_ARM/arm0/Common/getState'] [--sessions 10]
     (every kind also takes --config FILE: a Zenoh configuration, e.g. a secure cell identity's .json5)
 
 - ``slow``: subscribes to ``--key`` and spends ``--delay-ms`` in each sample's callback, on Zenoh's own
   thread, as a GUI or logger on a busy PC does (the very thing the Zenoh guide says not to do).
 - ``frozen``: subscribes to ``--key`` and then reads nothing: freeze it with ``kill -STOP`` (a process held
   in a debugger, a laptop whose lid closed) and its socket fills; ``kill -CONT`` lets it go on.
-- ``flood``: one query after another on ``--key``, as fast as the replies come.
+- ``flood``: ``--sessions`` clients (a session and a thread each), each sending one query after another
+  on ``--key`` as fast as the replies come.
 
 Prints ``bad client ready`` once its subscription or first reply is in place, then, every second,
 ``bad client: N samples`` (or replies). Runs until killed. Not part of the package: users' tools
@@ -43,20 +44,28 @@ def main() -> int:
     ap.add_argument("--key", help="default: JARA_ARM/** (slow), JARA_ARM/*/Servo/posFeedback (frozen), "
                     "JARA_ARM/arm0/Common/getState (flood)")
     ap.add_argument("--delay-ms", type=float, default=20.0, help="slow: time spent per sample [ms]")
+    ap.add_argument("--sessions", type=int, default=10, help="flood: how many clients (sessions) [1..100]")
     args = ap.parse_args()
     key = args.key or {"slow": "JARA_ARM/**", "frozen": "JARA_ARM/*/Servo/posFeedback",
                        "flood": "JARA_ARM/arm0/Common/getState"}[args.kind]
+    if not 1 <= args.sessions <= 100:
+        ap.error(f"--sessions {args.sessions}: between 1 and 100")
     count = [0]
-    with session(args) as s:
-        if args.kind == "flood":
-            print("bad client ready", flush=True)
-            last = time.monotonic()
+    if args.kind == "flood":
+        sessions = [session(args) for _ in range(args.sessions)]
+
+        def flood(s: zenoh.Session) -> None:
             while True:
                 for _ in s.get(key, payload=b"{}", timeout=10.0):
-                    count[0] += 1
-                if time.monotonic() - last >= 1.0:
-                    last = time.monotonic()
-                    print(f"bad client: {count[0]} replies", flush=True)
+                    count[0] += 1  # a race between threads at worst loses a count
+
+        for s in sessions:
+            threading.Thread(target=flood, args=(s,), daemon=True).start()
+        print("bad client ready", flush=True)
+        while True:
+            time.sleep(1.0)
+            print(f"bad client: {count[0]} replies", flush=True)
+    with session(args) as s:
 
         def slow(_: zenoh.Sample) -> None:
             count[0] += 1

@@ -8,8 +8,8 @@ sender. With services and user tools on one router, one slow GUI stalled the hea
 position stream of an arm. So ``jara-arm up`` runs two routers:
 
 - the **cell bus**, in the launcher process (real-time priority): only the cell's own services join
-  it, on a private endpoint (a Unix socket in a directory only the cell's user can open; in a
-  secure cell a TLS port on loopback). Everything that keeps an arm safe and fed travels here.
+  it, on a private endpoint (a Unix socket in a directory only the cell's user can open).
+  Everything that keeps an arm safe and fed travels here.
 - the **client gateway**, a process of its own at normal priority, listening on ``--listen``: every
   client joins it, and it joins the bus as one more router. It turns every publication it forwards
   into best effort (``drop``) and drops at once what a client's full queue cannot take; a client
@@ -29,7 +29,6 @@ import contextlib
 import json
 import os
 import shutil
-import socket
 import tempfile
 from collections.abc import Iterator, Sequence
 
@@ -75,23 +74,12 @@ def bus_config(conf: zenoh.Config, gateways: Sequence[str] = (GATEWAY_ZID,)) -> 
              "flows": ["egress"], "overwrite": {"congestion_control": "drop"}}]))
 
 
-def _free_loopback_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @contextlib.contextmanager
-def private_bus(secure: bool) -> Iterator[str]:
-    """A private endpoint for the cell bus, for as long as the context lasts.
-
-    Open cell: a Unix socket in a fresh directory of mode 0700 (only this user's processes can join;
-    no TCP client can reach it). Secure cell: a free TLS port on loopback, where the cell's
-    certificates and roles apply as on every other link.
-    """
-    if secure:
-        yield f"tls/127.0.0.1:{_free_loopback_port()}"
-        return
+def private_bus() -> Iterator[str]:
+    """A private endpoint for the cell bus, for as long as the context lasts: a Unix socket in a fresh
+    directory of mode 0700. Only this OS user's processes can join it, no TCP client can reach it,
+    and in a secure cell it spares the bus TLS (which cost the real-time router enough CPU to starve
+    the planner's stream beside a TLS observer); the cell's roles give it the router role."""
     directory = tempfile.mkdtemp(prefix="jara-arm-bus-")
     os.chmod(directory, 0o700)
     try:

@@ -1,8 +1,8 @@
 """``jara-arm up``: every service of every arm, on a private cell bus, behind a client gateway, on this host.
 
 Topology (launcher/gateway.py): the launcher process is the **cell bus**, a Zenoh router on a
-private endpoint (a Unix socket only this user can open; in a secure cell a TLS port on loopback)
-that every service process joins as a client. A **client gateway**, a router process of its own,
+private endpoint (a Unix socket only this user can open) that every service process joins as a
+client. A **client gateway**, a router process of its own,
 listens on the given endpoints and joins the bus: clients reach every service of every arm
 through it, and no client shares a dispatch queue with the services' own traffic. The launcher
 prints the services' logs (received over the bus), one ready line once every liveliness token is
@@ -103,10 +103,19 @@ def _echo_gateway(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
 
+def bus_secure(settings: UpSettings) -> bool:
+    """Whether the cell bus itself runs the secure cell's TLS and roles: only when it is opened to other
+    hosts (``--bus-listen``). On its private socket alone it needs neither (the socket's directory lets
+    only the cell's OS user in), and access control on every message of every service cost the
+    real-time bus enough CPU to starve the planner's stream beside a TLS observer."""
+    return bool(settings.router.secure and settings.bus)
+
+
 def bus_settings(settings: UpSettings, bus: str) -> RouterSettings:
-    """The launcher's own router: the cell bus, on ``bus`` and any further ``--bus`` endpoints."""
+    """The launcher's own router: the cell bus, on ``bus`` and any further ``--bus-listen`` endpoints."""
     r = settings.router
-    return dataclasses.replace(r, listen=(bus, *settings.bus), bus=True)
+    return dataclasses.replace(r, listen=(bus, *settings.bus), bus=True,
+                               secure=r.secure if bus_secure(settings) else None)
 
 
 def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings, bus: str) -> list[str]:
@@ -116,7 +125,8 @@ def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings, bus: st
             "--exit-with-parent", "--log-level", settings.log_level, *health_argv(settings.health)]
     if settings.router.config:
         argv += ["--config", os.path.abspath(settings.router.config)]
-    argv += secure_argv(settings)
+    if bus_secure(settings):
+        argv += secure_argv(settings)
     if service.service in (Service.SERVO, Service.PLANNER):
         for box in settings.obstacles:
             argv += ["--obstacle", box]
@@ -195,7 +205,7 @@ def start_order() -> list[ServiceSpec]:
 
 def run_up(settings: UpSettings, signals: StopSignals) -> int:
     """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
-    with private_bus(bool(settings.router.secure)) as bus, open_router(bus_settings(settings, bus)) as session:
+    with private_bus() as bus, open_router(bus_settings(settings, bus)) as session:
         # The bus carries the 1 kHz position stream from planner to servo: starved by
         # normal-priority work, it would let the servo FIFO run dry.
         realtime_process(ROUTER_RT_PRIORITY, "router", skip_caller=True)

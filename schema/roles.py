@@ -107,6 +107,10 @@ def egress_rights(role: Role) -> dict[str, list[str]]:
                                       "liveliness_token")}
 
 
+#: The access-control subject of every link over a Unix socket: the cell bus's.
+BUS_SUBJECT = "cell-bus"
+
+
 def access_control(names: Mapping[str, Role]) -> dict[str, Any]:
     """Zenoh's ``access_control`` configuration for a cell whose registry is ``names``
     (certificate common name → role). Everything not allowed is denied; a name with no
@@ -128,5 +132,11 @@ def access_control(names: Mapping[str, Role]) -> dict[str, Any]:
                 ids.append(rule_id)
         subjects.append({"id": role.value, "cert_common_names": holders})
         policies.append({"id": role.value, "rules": ids, "subjects": [role.value]})
+        if role is Role.ROUTER:
+            # The cell bus's private Unix socket (launcher/gateway.py): no certificate travels there; its
+            # directory's permissions let only the cell's own OS user in, and what joins is a service or a
+            # gateway, which may what a router may.
+            subjects.append({"id": BUS_SUBJECT, "link_protocols": ["unixsock-stream"]})
+            policies.append({"id": BUS_SUBJECT, "rules": ids, "subjects": [BUS_SUBJECT]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}

@@ -142,7 +142,10 @@ class Cell:
 
 
 def check_endpoints(endpoints: list[str] | tuple[str, ...]) -> None:
-    """With ``--secure`` every endpoint must be TLS: a plain one would be a door left open."""
-    plain = [e for e in endpoints if not e.startswith("tls/")]
+    """With ``--secure`` every endpoint must be TLS: a plain one would be a door left open. A Unix socket
+    (the cell bus's, ``unixsock-stream/PATH``) is a door of this host only, which its directory's
+    permissions keep to the cell's own OS user; it has the router role (schema/roles.py)."""
+    plain = [e for e in endpoints if not e.startswith(("tls/", "unixsock-stream/"))]
     if plain:
-        raise CellError(f"--secure: every endpoint must be tls/HOST:PORT, not {', '.join(plain)}")
+        raise CellError(f"--secure: every endpoint must be tls/HOST:PORT (or the cell bus's "
+                        f"unixsock-stream/PATH), not {', '.join(plain)}")

@@ -1,0 +1,178 @@
+"""No client can hurt the cell: the live system with an arm moving beside clients that behave badly.
+
+Each test starts a bad client (``bench/bad_client.py``, plain Zenoh, a process of its own) against
+``jara-arm up``'s client endpoint, then swings the arm back and forth between two joint poses and
+checks what a user would: every move accepted, every move arrived, and no alarm raised, neither
+while the bad client misbehaves nor after. Before the cell bus and the client gateway
+(``launcher/gateway.py``) a slow subscriber raised a false hung FAULT within 40 s.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from jara_arm import robots
+from jara_arm.launcher.certs import init_cell, issue
+from jara_arm.launcher.client import ArmClient
+from jara_arm.schema import messages
+from jara_arm.schema.keys import Service, any_arm_alarm
+from jara_arm.schema.operations import OP
+from jara_arm.schema.roles import Role
+from jara_arm.services.runtime.wire import decode_sample
+
+from .support import LAUNCHER, Proc, client_session, endpoint, free_port, launched, wait_until
+
+BAD_CLIENT = Path(__file__).parents[1] / "bench" / "bad_client.py"
+ROBOT = "iiwa"
+ARRIVED = 1e-3  #: [rad] a move has arrived when every joint is this close to its target
+
+
+class Cell:
+    """A client of the running system: moves the arm, and keeps every alarm raised."""
+
+    def __init__(self, session: zenoh.Session, proc: Proc) -> None:
+        self.client = ArmClient(session)
+        self.proc = proc
+        self.raised: list[str] = []
+        self._alarms = session.declare_subscriber(any_arm_alarm(), self._on_alarm)
+        model = robots.robot(ROBOT)
+        a, b = np.array(model.ready_pose), np.array(model.ready_pose)
+        a[0], b[0], a[1], b[1] = a[0] - 0.3, a[0] + 0.3, a[1] - 0.2, a[1] + 0.2
+        self.poses = (a, b)
+        self.moves = 0
+
+    def _on_alarm(self, sample: zenoh.Sample) -> None:  # appends only: no work in a callback
+        event = decode_sample(messages.ALARM_EVENT, sample)
+        if event.event == "raised":
+            self.raised.append(f"0x{event.alarm.code:03x} {event.alarm.type.value}: {event.alarm.description}")
+
+    def explain(self) -> str:
+        return "\n".join(self.proc.lines[-40:])
+
+    def start(self) -> None:
+        self.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR))
+        self.settled()
+        assert self.client.common(OP.servoON).ok, self.explain()
+        assert self.client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
+
+    def settled(self, timeout: float = 30.0) -> None:
+        """Until a second of the servo's loop (``Servo/health``) ran with at most 2 % of its cycles late: the
+        services have finished starting (the burst of a start-up is not what these tests are about)."""
+        with self.client.session.declare_subscriber(self.client.keys.servo_health,
+                                                    zenoh.handlers.FifoChannel(64)) as health:
+            def calm() -> bool:
+                while (s := health.try_recv()) is not None:
+                    h = decode_sample(messages.LOOP_HEALTH, s)
+                    if h.lateCycles <= 0.02 * h.cycles:
+                        return True
+                return False
+
+            wait_until(calm, timeout, 0.05, "a second of the servo loop with at most 2 % late",
+                       explain=self.explain)
+
+    def swing(self, seconds: float) -> int:
+        """Move back and forth for ``seconds`` [s]; each move accepted and arrived. The number of moves."""
+        until = time.monotonic() + seconds
+        done = 0
+        while time.monotonic() < until or done == 0:
+            target = self.poses[self.moves % 2]
+            reply = self.client.middle(OP.movePTPJointAbs, {"jointPoints": list(target)})
+            assert reply.ok, f"move {self.moves} refused: {reply.id} {reply.comment}\n{self.explain()}"
+            self.client.wait_idle(30.0)
+            q = np.array(self.client.common(OP.getFeedbackPosJoint)["pos"])[:len(target)]
+            assert np.abs(q - target).max() < ARRIVED, (
+                f"move {self.moves} did not arrive: {np.abs(q - target).max():.4f} rad left; alarms "
+                f"{self.raised}\n{self.explain()}")
+            self.moves += 1
+            done += 1
+        assert not self.raised, f"alarms raised: {self.raised}\n{self.explain()}"
+        return done
+
+    def close(self) -> None:
+        self._alarms.undeclare()
+
+
+@pytest.fixture(scope="module")
+def cell() -> Iterator[tuple[Cell, int]]:
+    with launched("--robot", ROBOT) as (proc, port), client_session(port) as session:
+        c = Cell(session, proc)
+        c.start()
+        yield c, port
+        c.close()
+
+
+@contextlib.contextmanager
+def bad_client(kind: str, connect: str, *args: str) -> Iterator[Proc]:
+    """``bench/bad_client.py KIND`` connected to ``connect``, once ready; killed afterwards."""
+    proc = Proc([sys.executable, str(BAD_CLIENT), kind, "--connect", connect, *args])
+    try:
+        proc.wait_for_line("bad client ready", timeout=30)
+        yield proc
+    finally:
+        proc.stop(signal.SIGKILL)
+
+
+def received(proc: Proc) -> int:
+    """What the bad client said it received so far (samples or replies)."""
+    counts = [int(line.split()[2]) for line in proc.lines if line.startswith("bad client: ")]
+    return counts[-1] if counts else 0
+
+
+def test_a_slow_subscriber_of_everything_hurts_nobody(cell: tuple[Cell, int]) -> None:
+    c, port = cell
+    with bad_client("slow", endpoint(port), "--key", "JARA_ARM/**", "--delay-ms", "20") as slow:
+        c.swing(15.0)
+        # It really was subscribed, and really slow: 20 ms a sample is at most 50 a second.
+        assert 0 < received(slow) <= 50 * 20, slow.output
+    c.swing(1.0)
+
+
+def test_a_frozen_feedback_subscriber_hurts_nobody(cell: tuple[Cell, int]) -> None:
+    c, port = cell
+    with bad_client("frozen", endpoint(port)) as frozen:
+        wait_until(lambda: received(frozen) > 100, 10, what="the frozen client receiving feedback")
+        frozen.popen.send_signal(signal.SIGSTOP)  # a debugger's breakpoint; its socket fills
+        c.swing(10.0)
+        frozen.popen.send_signal(signal.SIGCONT)
+        c.swing(2.0)
+        frozen.popen.send_signal(signal.SIGKILL)
+        c.swing(2.0)
+
+
+def test_ten_clients_flooding_queries_hurt_nobody(cell: tuple[Cell, int]) -> None:
+    c, port = cell
+    with bad_client("flood", endpoint(port), "--sessions", "10") as flood:
+        wait_until(lambda: received(flood) > 100, 20, what="the flood's replies")
+        c.swing(10.0)
+        assert received(flood) > 1000, flood.output
+
+
+def test_a_slow_observer_of_a_secure_cell_hurts_nobody(tmp_path: Path) -> None:
+    """An identity allowed to watch, not to move, reading everything at 20 ms a sample."""
+    cell_dir = init_cell(tmp_path / "cell")
+    issue(cell_dir, "alice", Role.OPERATOR)
+    issue(cell_dir, "olga", Role.OBSERVER)
+    ep = f"tls/127.0.0.1:{free_port()}"
+    proc = Proc([*LAUNCHER, "up", "--robot", ROBOT, "--secure", str(tmp_path / "cell"), "--listen", ep])
+    try:
+        proc.wait_for_line("ready", timeout=90)
+        conf = zenoh.Config.from_file(str(cell_dir.zenoh_file("alice")))
+        conf.insert_json5("connect/endpoints", f'["{ep}"]')
+        with zenoh.open(conf) as session, bad_client(
+                "slow", ep, "--config", str(cell_dir.zenoh_file("olga")), "--key", "JARA_ARM/**") as olga:
+            c = Cell(session, proc)
+            c.start()
+            c.swing(15.0)
+            assert received(olga) > 0, olga.output
+            c.close()
+    finally:
+        assert proc.stop(signal.SIGINT, timeout=20) == 0, proc.output[-4000:]
