@@ -167,9 +167,11 @@ class Supervisor:
     def children(self) -> list[Child]:
         return [c for layer in self.layers for c in layer]
 
-    def start(self) -> None:
-        for child in self.children:
-            child.start()
+    def start(self, first_layer: int = 0) -> None:
+        """Start the children of every layer from ``first_layer`` on."""
+        for layer in self.layers[first_layer:]:
+            for child in layer:
+                child.start()
 
     def poll(self) -> None:
         """Call about every 0.1 s: restarts what died, unless stopping."""

@@ -26,7 +26,7 @@ from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.timing import SAME_HOST, Health, health_argv
 
 from .gateway import private_bus
-from .router import Presence, RouterSettings, local_endpoint, open_router, say
+from .router import Presence, RouterError, RouterSettings, local_endpoint, open_router, say
 from .services import SERVICES, ServiceSpec
 from .supervisor import Child, StopSignals, Supervisor
 from .watch import LogPrinter
@@ -99,7 +99,7 @@ def gateway_child(settings: UpSettings, bus: str) -> Child:
 def _echo_gateway(line: str) -> None:
     """The gateway's warnings, errors and refusals on the launcher's stderr; not its ready line (not the
     cell's) nor its INFO lines (the services it sees join and leave, which the launcher says too)."""
-    if not line.startswith("jara-arm: ready") and " INFO " not in line and " DEBUG " not in line:
+    if " WARNING " in line or " ERROR " in line:  # its log records; not its usage text on a failed start
         print(line, file=sys.stderr, flush=True)
 
 
@@ -197,6 +197,28 @@ class Readiness:
                         ", ".join(label(s, a) if a else s for a, s in missing))
 
 
+#: How long the launcher waits for the gateway to join the bus before it starts the services anyway [s]
+#: (the ready line still waits for it).
+GATEWAY_JOIN_TIMEOUT = 30.0
+
+
+def await_gateway(gateway: Child, joined: Callable[[], bool], signals: StopSignals) -> None:
+    """Until the gateway has joined the bus; RouterError with its own words if it exits first."""
+    deadline = time.monotonic() + GATEWAY_JOIN_TIMEOUT
+    while not joined() and not signals.stop.wait(0.02):
+        if gateway.popen is None or gateway.popen.poll() is not None:
+            if gateway.popen is not None:
+                gateway.popen.wait()
+            time.sleep(0.2)  # its last lines reach the tail
+            said = [line for line in gateway.tail if "error" in line.lower() or "cannot" in line]
+            raise RouterError(said[-1].split("error: ", 1)[-1] if said else
+                              f"the client gateway exited at start: {' / '.join(gateway.tail)}")
+        if time.monotonic() > deadline:
+            log.warning("the client gateway has not joined the cell bus after %.0f s; starting the services",
+                        GATEWAY_JOIN_TIMEOUT)
+            return
+
+
 def start_order() -> list[ServiceSpec]:
     """The alarm monitor first, so that it stops last (the layers stop in reverse order): it
     sees every other service leave, and no servo sees the monitor go while it runs."""
@@ -210,6 +232,7 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
         # normal-priority work, it would let the servo FIFO run dry.
         realtime_process(ROUTER_RT_PRIORITY, "router", skip_caller=True)
         gateway = gateway_settings(settings, bus)
+        gateway.config_object()  # RouterError (a usage error) for endpoints or a config it cannot take
         logs = LogPrinter(session, any_arm_log())
         presence = Presence(session)
 
@@ -224,7 +247,13 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
         demos: list[subprocess.Popen] = []
         try:
             if not signals.stop.is_set():  # a Ctrl-C while the router opened
-                supervisor.start()
+                # The gateway alone first: a client endpoint it cannot open (a port in use) is an error
+                # of the command line, said before any service starts.
+                gw = supervisor.layers[0][0]
+                gw.start()
+                await_gateway(gw, gateway_joined, signals)
+            if not signals.stop.is_set():
+                supervisor.start(first_layer=1)
             while not signals.stop.wait(POLL_PERIOD):
                 logs.drain()
                 readiness.poll()

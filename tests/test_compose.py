@@ -21,7 +21,8 @@ from jara_arm.robots import ROBOTS
 from jara_arm.schema.keys import check_arm
 
 ROOT = Path(__file__).resolve().parent.parent
-ROUTER = "router"
+ROUTER = "router"  #: the cell bus
+GATEWAY = "gateway"  #: the client gateway
 _VARIABLE = re.compile(r"\$\{(\w+)(:?-)?([^}]*)\}")
 
 pytestmark = pytest.mark.timeout(30)
@@ -50,10 +51,10 @@ def command(service: dict[str, Any]) -> list[str]:
 
 
 def test_every_service_is_in_the_launcher_table(compose: dict[str, Any]) -> None:
-    names = set(compose["services"]) - {ROUTER}
-    assert names, "no service besides the router"
+    names = set(compose["services"]) - {ROUTER, GATEWAY}
+    assert names, "no service besides the routers"
     assert names <= set(NAMES), f"not in the launcher's service table: {names - set(NAMES)}"
-    assert ROUTER in compose["services"]
+    assert ROUTER in compose["services"] and GATEWAY in compose["services"]
 
 
 def test_every_command_is_accepted_by_its_parser(compose: dict[str, Any]) -> None:
@@ -62,24 +63,26 @@ def test_every_command_is_accepted_by_its_parser(compose: dict[str, Any]) -> Non
         assert cmd[0] == "jara-arm", f"{name}: {cmd}"
         parser, argv = cli.command_parser(cmd[1:])
         args = parser.parse_args(argv)  # SystemExit(2) here names the offending option
-        if name == ROUTER:
-            assert cmd[1] == "router"
+        if name in (ROUTER, GATEWAY):
+            assert cmd[1] == "router" and (args.bus if name == ROUTER else args.gateway), f"{name}: {cmd}"
+            if name == GATEWAY:  # joins the bus by its compose name
+                assert args.connect and all(f"/{ROUTER}:" in e for e in args.connect), args.connect
             continue
         assert cmd[1:3] == ["service", name], f"compose service {name} runs {cmd[1:3]}"
         check_arm(args.arm)
         assert args.robot in ROBOTS
-        # A client of the router service, found by its compose name.
+        # A client of the bus, found by its compose name.
         assert args.mode == "client"
         assert args.connect and all(f"/{ROUTER}:" in e for e in args.connect), args.connect
 
 
-def test_router_listens_on_the_published_port(compose: dict[str, Any]) -> None:
-    router = compose["services"][ROUTER]
-    parser, argv = cli.command_parser(command(router)[1:])
-    listen = parser.parse_args(argv).listen
-    assert listen == ["tcp/0.0.0.0:7447"]
-    published = [substitute_defaults(str(p)) for p in router["ports"]]
+def test_the_gateway_listens_on_the_published_port_and_the_bus_on_none(compose: dict[str, Any]) -> None:
+    gateway = compose["services"][GATEWAY]
+    parser, argv = cli.command_parser(command(gateway)[1:])
+    assert parser.parse_args(argv).listen == ["tcp/0.0.0.0:7447"]
+    published = [substitute_defaults(str(p)) for p in gateway["ports"]]
     assert any(p.endswith(":7447") for p in published), published
+    assert "ports" not in compose["services"][ROUTER], "the bus must not be reachable by clients"
     for name in set(compose["services"]) - {ROUTER}:
         assert ROUTER in compose["services"][name]["depends_on"]
 

@@ -175,7 +175,7 @@ def test_port_in_use_is_a_readable_error() -> None:
                              text=True, timeout=15)
     assert run.returncode == 2, run.stderr
     assert "Address already in use" in run.stderr and "Traceback" not in run.stderr
-    assert "started" not in run.stderr  # no child was started
+    assert "started servo" not in run.stderr  # no service was started: only the gateway, which failed
 
 
 def test_restart_backoff_doubles_to_a_cap_and_resets_after_stable_running() -> None:
