@@ -19,8 +19,9 @@ position stream of an arm. So ``jara-arm up`` runs two routers:
 
 On the bus, the only blocking publications (the planner's position stream, ``Traffic.STREAM``) are
 turned into best effort on their way to the gateway (by the gateway's Zenoh id), so a gateway that
-falls behind costs the bus nothing but those samples. Replies are best effort everywhere
-(``Traffic.REPLY``): Zenoh cannot overwrite a reply's congestion control, so the services reply so.
+falls behind costs the bus nothing but those samples. A reply travels with its query's congestion
+control and priority: the services' queriers ask with ``Traffic.REPLY`` (best effort), and the
+gateway makes every client's query best effort on its way in.
 """
 
 from __future__ import annotations
@@ -61,6 +62,10 @@ def gateway_config(conf: zenoh.Config, zid: str = GATEWAY_ZID) -> None:
     conf.insert_json5(f"{queue}/block/wait_before_close", str(GATEWAY_WAIT_BEFORE_CLOSE))
     conf.insert_json5("qos/network", json.dumps([
         {"id": "clients-best-effort", "messages": ["put", "delete"], "flows": ["egress"],
+         "overwrite": {"congestion_control": "drop"}},
+        # A reply travels with its query's congestion control and priority: a client's blocking query would
+        # get a reply that waits on that client. Its queries are made best effort on the way in.
+        {"id": "client-queries-best-effort", "messages": ["query"], "flows": ["ingress"],
          "overwrite": {"congestion_control": "drop"}}]))
 
 

@@ -99,7 +99,7 @@ def gateway_child(settings: UpSettings, bus: str) -> Child:
 def _echo_gateway(line: str) -> None:
     """The gateway's warnings, errors and refusals on the launcher's stderr; not its ready line (not the
     cell's) nor its INFO lines (the services it sees join and leave, which the launcher says too)."""
-    if " WARNING " in line or " ERROR " in line:  # its log records; not its usage text on a failed start
+    if (" WARNING " in line or " ERROR " in line) and "the cell is OPEN" not in line:  # not its usage text
         print(line, file=sys.stderr, flush=True)
 
 
@@ -233,6 +233,7 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
         realtime_process(ROUTER_RT_PRIORITY, "router", skip_caller=True)
         gateway = gateway_settings(settings, bus)
         gateway.config_object()  # RouterError (a usage error) for endpoints or a config it cannot take
+        gateway.announce()  # how open the cell is, said here: the gateway's own saying is not echoed
         logs = LogPrinter(session, any_arm_log())
         presence = Presence(session)
 

@@ -121,7 +121,7 @@ def access_control(names: Mapping[str, Role]) -> dict[str, Any]:
     policies: list[dict[str, Any]] = []
     for role in Role:
         holders = sorted(n for n, r in names.items() if r is role)
-        if not holders:
+        if not holders and role is not Role.ROUTER:
             continue  # Zenoh refuses a subject without a name
         ids = []
         for flow, rights in (("ingress", ingress_rights(role)), ("egress", egress_rights(role))):
@@ -130,8 +130,9 @@ def access_control(names: Mapping[str, Role]) -> dict[str, Any]:
                 rules.append({"id": rule_id, "messages": [message], "flows": [flow],
                               "permission": "allow", "key_exprs": key_exprs})
                 ids.append(rule_id)
-        subjects.append({"id": role.value, "cert_common_names": holders})
-        policies.append({"id": role.value, "rules": ids, "subjects": [role.value]})
+        if holders:
+            subjects.append({"id": role.value, "cert_common_names": holders})
+            policies.append({"id": role.value, "rules": ids, "subjects": [role.value]})
         if role is Role.ROUTER:
             # The cell bus's private Unix socket (launcher/gateway.py): no certificate travels there; its
             # directory's permissions let only the cell's own OS user in, and what joins is a service or a

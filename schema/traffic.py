@@ -39,9 +39,10 @@ class Traffic(enum.Enum):
     #: What the monitor's detectors count (servo status), motion progress, alarm events.
     CONTROL = TrafficClass("interactive_high", "drop", True,
                            "what detectors and the queue bookkeeping read, 100 Hz at most")
-    #: Replies to queries: behind safety, ahead of every stream a client may also subscribe to.
+    #: Queries and their replies (a reply travels with its query's priority and congestion control):
+    #: behind safety, ahead of every stream a client may also subscribe to.
     REPLY = TrafficClass("interactive_low", "drop", True,
-                         "a call's answer: a client's own streams never hold it up")
+                         "a call and its answer: a client's own streams never hold it up")
     #: State and settings: low rate, read by people and tools.
     STATE = TrafficClass("data_high", "drop", False, "low-rate state people and tools read")
     #: The 1 kHz feedback: for those who ask for it; a slow reader loses samples of its own.

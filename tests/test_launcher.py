@@ -250,13 +250,19 @@ def test_readiness_warns_about_missing_services_then_says_ready_once(
     presence = _FakePresence()
     settings = up.UpSettings((up.ArmSpec("a1", "iiwa"), up.ArmSpec("a2", "panda")),
                              RouterSettings(("tcp/127.0.0.1:7447",)))
-    readiness = up.Readiness(settings, presence)  # type: ignore[arg-type]
+    joined = [False]  # the gateway's link to the bus
+    readiness = up.Readiness(settings, presence, lambda: joined[0])  # type: ignore[arg-type]
     presence.alive.update(("a1", name) for name in NAMES)
     with caplog.at_level(logging.WARNING, "jara_arm.launcher"):
         readiness.poll()
     assert "still waiting for servo (a2)" in caplog.text and "servo (a1)" not in caplog.text
     assert "ready" not in capsys.readouterr().out
     presence.alive.update(("a2", name) for name in NAMES)
+    with caplog.at_level(logging.WARNING, "jara_arm.launcher"):
+        readiness.poll()
+    assert "still waiting for client gateway" in caplog.text, caplog.text
+    assert "ready" not in capsys.readouterr().out
+    joined[0] = True
     readiness.poll()
     readiness.poll()
     names = ", ".join(NAMES)

@@ -13,7 +13,7 @@ import zenoh
 
 from jara_arm.schema.keys import ANY_ARM, ArmKeys, Service
 from jara_arm.schema.operations import COMMON, EXT, MIDDLE, Interface
-from jara_arm.schema.roles import EVERY_MESSAGE, Role, RoleError, access_control, changes_nothing, ingress_rights
+from jara_arm.schema.roles import BUS_SUBJECT, EVERY_MESSAGE, Role, RoleError, access_control, changes_nothing, ingress_rights
 
 KEYS = ArmKeys(ANY_ARM)
 CLIENTS = (Role.OPERATOR, Role.LOW_LEVEL, Role.OBSERVER)
@@ -70,14 +70,24 @@ def test_zenoh_takes_the_configuration() -> None:
     acl = access_control({"router": Role.ROUTER, "service": Role.SERVICE, "alice": Role.OPERATOR,
                           "lowell": Role.LOW_LEVEL, "olga": Role.OBSERVER})
     assert acl["default_permission"] == "deny"
-    assert {s["id"] for s in acl["subjects"]} == {r.value for r in Role}
+    assert {s["id"] for s in acl["subjects"]} == {r.value for r in Role} | {BUS_SUBJECT}
     conf = zenoh.Config()
     conf.insert_json5("access_control", json.dumps(acl))  # ZError if Zenoh refused a field
 
 
 def test_a_role_without_holders_is_left_out() -> None:
     acl = access_control({"olga": Role.OBSERVER})
-    assert [s["cert_common_names"] for s in acl["subjects"]] == [["olga"]]
+    assert [s.get("cert_common_names") for s in acl["subjects"]] == [None, ["olga"]]  # the bus's, then olga's
+
+
+def test_the_cell_bus_link_has_the_router_role() -> None:
+    """The private Unix socket of the cell bus (launcher/gateway.py) carries no certificate: a gateway's link
+    to it is known by its protocol, and may what a router may."""
+    acl = access_control({"alice": Role.OPERATOR})
+    [bus] = [s for s in acl["subjects"] if s["id"] == BUS_SUBJECT]
+    assert bus == {"id": BUS_SUBJECT, "link_protocols": ["unixsock-stream"]}
+    [policy] = [p for p in acl["policies"] if p["subjects"] == [BUS_SUBJECT]]
+    assert policy["rules"] and all(r.startswith("router ") for r in policy["rules"])
 
 
 def test_an_unknown_role_names_the_valid_ones() -> None:

@@ -21,6 +21,7 @@ from jara_arm.schema import codec
 from jara_arm.schema.codec import Encoding
 
 from .entities import Entities
+from .wire import query_qos
 
 log = logging.getLogger(__name__)
 
@@ -55,7 +56,8 @@ class Asker:
         self.key = key
         self.timeout = timeout
         self._entities = Entities()
-        self._querier = self._entities.enter_context(session.declare_querier(key, target=target, timeout=timeout))
+        self._querier = self._entities.enter_context(session.declare_querier(key, target=target, timeout=timeout,
+                                                                             **query_qos(key)))
         self._declared = time.monotonic()
 
     def served(self) -> bool:

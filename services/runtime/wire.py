@@ -46,10 +46,19 @@ def qos(traffic: Traffic) -> dict[str, Any]:
             "express": c.express}
 
 
+def query_qos(key: str) -> dict[str, Any]:
+    """The options of a querier on ``key``: its traffic class (``Traffic.REPLY`` for a key outside the table).
+    A reply travels with its query's priority and congestion control (Zenoh decides so), so the querier
+    chooses both; the client gateway sets every client's queries to ``drop`` (launcher/gateway.py)."""
+    try:
+        return qos(traffic_of(key))
+    except JaraArmError:
+        return qos(Traffic.REPLY)
+
+
 def reply(query: zenoh.Query, key: str, body: bytes, encoding: Encoding) -> None:
-    """Answer ``query`` on ``key`` with ``body`` (in ``encoding``), labelled, with the key's traffic class:
-    a reply that meets a full queue is dropped rather than stall whoever routes it."""
-    query.reply(key, body, encoding=label(encoding), **qos(traffic_of(key)))
+    """Answer ``query`` on ``key`` with ``body`` (in ``encoding``), labelled, sent at once (express)."""
+    query.reply(key, body, encoding=label(encoding), express=traffic_of(key).value.express)
 
 
 def decode_sample(kind: StructType[T], sample: zenoh.Sample) -> T:
