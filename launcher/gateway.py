@@ -35,12 +35,21 @@ from collections.abc import Iterator, Sequence
 
 import zenoh
 
+from jara_arm.schema.traffic import Traffic
+
 #: The gateway's Zenoh id (hex of "jaragate"): the bus knows its link by it. One gateway per cell bus
 #: by default; give each further gateway its own (``--gateway-id``) and tell the bus every one.
 GATEWAY_ZID = "6a61726167617465"
-#: How long a gateway waits for room in a client's queue before dropping a droppable message [µs].
-#: Zero: a client that cannot take a sample loses it, and the gateway goes on to the next one at once.
-GATEWAY_WAIT_BEFORE_DROP = 0
+#: The cell bus's Zenoh id (hex of "jarabus"): its gateways know their link to it by it.
+BUS_ZID = "6a617261627573"
+#: How long a gateway waits for room in a client's queue before dropping a droppable message [µs]. A
+#: client that cannot take a sample loses it after this wait, and the wait is the whole cost to others:
+#: 0.1 ms per sample to a frozen client, where Zenoh's default of 1 ms at 1 kHz per arm took the whole of
+#: the forwarding thread. Not zero: a healthy client's queue is full for a few microseconds at times.
+GATEWAY_WAIT_BEFORE_DROP = 100
+#: Batches in each of a client link's queues below real time (Zenoh's default is 2, the most 16): with
+#: the samples to clients batched (not express), a queue takes thousands of them before a drop.
+GATEWAY_QUEUE_BATCHES = 16
 #: The same for a message too big for one batch (its fragments) [µs]: the world model, once a second.
 GATEWAY_WAIT_FRAGMENTS = 1_000
 #: How long a gateway waits to send a blocking message (a declaration) to a client before it closes that
@@ -54,23 +63,38 @@ BUS_WAIT_BEFORE_DROP = 50
 
 
 def gateway_config(conf: zenoh.Config, zid: str = GATEWAY_ZID) -> None:
-    """Make ``conf`` (a router's) a client gateway's: best effort to every client, never waiting on one."""
+    """Make ``conf`` (a router's) a client gateway's: best effort to every client, never waiting on one.
+
+    Towards the bus (its Zenoh id :data:`BUS_ZID`) a client's publications block instead: a low-level
+    client's position commands (``Servo/posCmd``, a SyncFIFO where every command counts) would otherwise
+    be lost in bursts at a zero wait. That waits on the bus only, which reads at once; a client that
+    floods waits on its own link.
+    """
     conf.insert_json5("id", json.dumps(zid))
     queue = "transport/link/tx/queue/congestion_control"
     conf.insert_json5(f"{queue}/drop/wait_before_drop", str(GATEWAY_WAIT_BEFORE_DROP))
     conf.insert_json5(f"{queue}/drop/max_wait_before_drop_fragments", str(GATEWAY_WAIT_FRAGMENTS))
     conf.insert_json5(f"{queue}/block/wait_before_close", str(GATEWAY_WAIT_BEFORE_CLOSE))
+    for priority in ("interactive_low", "data_high", "data", "data_low", "background"):
+        conf.insert_json5(f"transport/link/tx/queue/size/{priority}", str(GATEWAY_QUEUE_BATCHES))
+    reply = Traffic.REPLY.value
     conf.insert_json5("qos/network", json.dumps([
+        # Batched, not express: a queue slot then holds hundreds of samples, not one.
         {"id": "clients-best-effort", "messages": ["put", "delete"], "flows": ["egress"],
-         "overwrite": {"congestion_control": "drop"}},
+         "overwrite": {"congestion_control": "drop", "express": False}},
         # A reply travels with its query's congestion control and priority: a client's blocking query would
-        # get a reply that waits on that client. Its queries are made best effort on the way in.
+        # get a reply that waits on that client. Its queries are made best effort on the way in, and of the
+        # reply class's priority, so that the reply does not queue behind the client's own streams.
         {"id": "client-queries-best-effort", "messages": ["query"], "flows": ["ingress"],
-         "overwrite": {"congestion_control": "drop"}}]))
+         "overwrite": {"congestion_control": reply.congestion, "priority": reply.priority}},
+        # After the rule above, which it overrides on this one link (Zenoh applies the rules in order).
+        {"id": "to-the-bus-reliably", "zids": [BUS_ZID], "messages": ["put", "delete"], "flows": ["egress"],
+         "overwrite": {"congestion_control": "block"}}]))
 
 
 def bus_config(conf: zenoh.Config, gateways: Sequence[str] = (GATEWAY_ZID,)) -> None:
     """Make ``conf`` (a router's) the cell bus's: its blocking stream reaches ``gateways`` as best effort."""
+    conf.insert_json5("id", json.dumps(BUS_ZID))
     queue = "transport/link/tx/queue/congestion_control"
     conf.insert_json5(f"{queue}/drop/wait_before_drop", str(BUS_WAIT_BEFORE_DROP))
     if gateways:

@@ -227,12 +227,12 @@ def start_order() -> list[ServiceSpec]:
 
 def run_up(settings: UpSettings, signals: StopSignals) -> int:
     """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
+    settings.router.config_object()  # RouterError (a usage error) for endpoints or a config the gateway cannot take
     with private_bus() as bus, open_router(bus_settings(settings, bus)) as session:
         # The bus carries the 1 kHz position stream from planner to servo: starved by
         # normal-priority work, it would let the servo FIFO run dry.
         realtime_process(ROUTER_RT_PRIORITY, "router", skip_caller=True)
         gateway = gateway_settings(settings, bus)
-        gateway.config_object()  # RouterError (a usage error) for endpoints or a config it cannot take
         gateway.announce()  # how open the cell is, said here: the gateway's own saying is not echoed
         logs = LogPrinter(session, any_arm_log())
         presence = Presence(session)
