@@ -42,10 +42,12 @@ bench: setup
 	$(BIN)/python bench/soak.py --arms 4 --minutes 2
 	$(BIN)/python bench/starts.py --runs 5
 
-# The proof of the "Fast and right" figures: every soak 10 minutes, quiet and with a CPU hog.
+# The proof of the "Fast and right" and "No client can hurt the cell" figures: every soak 10 minutes,
+# quiet, with a CPU hog on every core, and with the hogs and both bad clients (slow, frozen).
 soak: setup
 	for n in 1 2 4; do $(BIN)/python bench/soak.py --arms $$n --minutes 10 || exit 1; \
-	  $(BIN)/python bench/soak.py --arms $$n --minutes 10 --hog || exit 1; done
+	  $(BIN)/python bench/soak.py --arms $$n --minutes 10 --hog || exit 1; \
+	  $(BIN)/python bench/soak.py --arms $$n --minutes 10 --hog --slow-client --frozen-client || exit 1; done
 
 # Chromium for the browser tests of `jara-arm view` (tests/test_view.py), from the system's packages
 # (Debian, as root); where it cannot be installed those tests are skipped, saying so. CI runs it (.ci/run).

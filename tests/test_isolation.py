@@ -49,6 +49,7 @@ class Cell:
         a[0], b[0], a[1], b[1] = a[0] - 0.3, a[0] + 0.3, a[1] - 0.2, a[1] + 0.2
         self.poses = (a, b)
         self.moves = 0
+        self.host_pauses = 0  #: moves cut short by a pause of the whole host (at most one is forgiven)
 
     def _on_alarm(self, sample: zenoh.Sample) -> None:  # appends only: no work in a callback
         event = decode_sample(messages.ALARM_EVENT, sample)
@@ -79,19 +80,35 @@ class Cell:
             wait_until(calm, timeout, 0.05, "a second of the servo loop with at most 2 % late",
                        explain=self.explain)
 
+    def host_paused(self, since: int) -> bool:
+        """Whether the log since line ``since`` shows the planner's stream running dry while the alarm
+        monitor itself was paused: the whole host stopped (VM steal), not a client. The servo-side
+        interpolation (issue "The servo interpolates") is what makes a motion ride over that."""
+        lines = self.proc.lines[since:]
+        return any("ran dry" in line for line in lines) and any("itself paused" in line for line in lines)
+
     def swing(self, seconds: float) -> int:
-        """Move back and forth for ``seconds`` [s]; each move accepted and arrived. The number of moves."""
+        """Move back and forth for ``seconds`` [s]; each move accepted and arrived. The number of moves.
+
+        A move cut short by a pause of the whole host (:meth:`host_paused`) is said on stderr and sent
+        again, once in the test; any other move that does not arrive fails it."""
         until = time.monotonic() + seconds
         done = 0
         while time.monotonic() < until or done == 0:
             target = self.poses[self.moves % 2]
+            mark = len(self.proc.lines)
             reply = self.client.middle(OP.movePTPJointAbs, {"jointPoints": list(target)})
             assert reply.ok, f"move {self.moves} refused: {reply.id} {reply.comment}\n{self.explain()}"
             self.client.wait_idle(30.0)
             q = np.array(self.client.common(OP.getFeedbackPosJoint)["pos"])[:len(target)]
-            assert np.abs(q - target).max() < ARRIVED, (
-                f"move {self.moves} did not arrive: {np.abs(q - target).max():.4f} rad left; alarms "
-                f"{self.raised}\n{self.explain()}")
+            left = np.abs(q - target).max()
+            if left >= ARRIVED and not self.host_pauses and self.host_paused(mark):
+                self.host_pauses += 1
+                print(f"move {self.moves} cut short by a host pause, sent again: {left:.4f} rad left\n"
+                      + "\n".join(self.proc.lines[mark:]), file=sys.stderr)
+                continue
+            assert left < ARRIVED, (
+                f"move {self.moves} did not arrive: {left:.4f} rad left; alarms {self.raised}\n{self.explain()}")
             self.moves += 1
             done += 1
         assert not self.raised, f"alarms raised: {self.raised}\n{self.explain()}"
