@@ -97,10 +97,14 @@ def bus_config(conf: zenoh.Config, gateways: Sequence[str] = (GATEWAY_ZID,)) -> 
     conf.insert_json5("id", json.dumps(BUS_ZID))
     queue = "transport/link/tx/queue/congestion_control"
     conf.insert_json5(f"{queue}/drop/wait_before_drop", str(BUS_WAIT_BEFORE_DROP))
+    # Replies to clients travel best effort (their queries were made so): room for a burst of them, and
+    # of samples, on the link to a gateway that falls behind for a moment (memory taken only when used).
+    for priority in ("interactive_low", "data_high", "data", "data_low", "background"):
+        conf.insert_json5(f"transport/link/tx/queue/size/{priority}", str(GATEWAY_QUEUE_BATCHES))
     if gateways:
         conf.insert_json5("qos/network", json.dumps([
             {"id": "to-gateways-best-effort", "zids": list(gateways), "messages": ["put", "delete"],
-             "flows": ["egress"], "overwrite": {"congestion_control": "drop"}}]))
+             "flows": ["egress"], "overwrite": {"congestion_control": "drop", "express": False}}]))
 
 
 @contextlib.contextmanager

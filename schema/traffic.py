@@ -22,7 +22,7 @@ class TrafficClass:
 
     priority: str
     congestion: str  #: ``block`` or ``drop``
-    express: bool  #: sent at once, not batched with later messages
+    express: bool  #: sent at once, never batched; else batched only while the link is backed up (Zenoh's adaptive batching)
     why: str
 
 
@@ -40,8 +40,9 @@ class Traffic(enum.Enum):
     CONTROL = TrafficClass("interactive_high", "drop", True,
                            "what detectors and the queue bookkeeping read, 100 Hz at most")
     #: Queries and their replies (a reply travels with its query's priority and congestion control):
-    #: behind safety, ahead of every stream a client may also subscribe to.
-    REPLY = TrafficClass("interactive_low", "drop", True,
+    #: behind safety, ahead of every stream a client may also subscribe to. Not express: a burst of
+    #: replies to a gateway that is behind shares batches instead of taking one queue slot each.
+    REPLY = TrafficClass("interactive_low", "drop", False,
                          "a call and its answer: a client's own streams never hold it up")
     #: State and settings: low rate, read by people and tools.
     STATE = TrafficClass("data_high", "drop", False, "low-rate state people and tools read")
