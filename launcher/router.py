@@ -17,7 +17,6 @@ import zenoh
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import any_arm_alive, parse_alive
 from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
-from jara_arm.services.runtime.realtime import NORMAL_NICE, weighted_process
 from jara_arm.services.runtime.zenoh_args import default_endpoint, zenoh_config
 
 from .gateway import GATEWAY_ZID, bus_config, gateway_config
@@ -159,8 +158,6 @@ def say(line: str) -> None:
 
 def run_router(settings: RouterSettings, signals: StopSignals) -> int:
     """``jara-arm router``: route until SIGINT/SIGTERM, reporting services that join or leave."""
-    if settings.gateway:  # before the session: Zenoh's threads inherit it
-        weighted_process(NORMAL_NICE, "client gateway")
     with open_router(settings) as session:
         presence = Presence(session)
         say(f"jara-arm: ready: router; listening on {', '.join(settings.endpoints())}")

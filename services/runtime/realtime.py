@@ -4,7 +4,7 @@ Needs CAP_SYS_NICE (or an RLIMIT_RTPRIO); without it the threads stay normal
 ones and the service says so once. Priorities of this project: servo clock 40 (its
 other threads 39), the launcher's router 35, planner streamer 30 (its other
 threads 29); the alarm monitor, the command and the client gateway run under the
-normal scheduler at nice -10 (``docs/timing.md``, "Real-time budget": every real-time
+normal scheduler (``docs/timing.md``, "Real-time budget": every real-time
 thread of the machine shares one budget, and the kernel stops them all once it is spent).
 """
 
@@ -19,25 +19,6 @@ log = logging.getLogger(__name__)
 
 
 _PR_SET_TIMERSLACK = 29
-
-#: The nice value of the processes that run under the normal scheduler but keep the cell healthy: the
-#: alarm monitor, the command service, the client gateway. Their CPU weight is then about 9 times a
-#: normal process's (Linux's weights: nice -10 is 9548, nice 0 is 1024), so a busy loop per core (a cell
-#: PC's vision or UI) no longer starves them for seconds: beside one on each core and 4 moving arms, a
-#: monitor's loop stood still 3 s (a hung FAULT on itself). Unlike SCHED_FIFO it spends no real-time budget.
-NORMAL_NICE = -10
-
-
-def weighted_process(nice: int, what: str) -> bool:
-    """This process (and the threads it starts from now on) at ``nice``; a warning if not permitted."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, nice)
-        log.info("%s runs at nice %d", what, nice)
-        return True
-    except (OSError, AttributeError):
-        log.warning("%s at its default nice (no permission for %d?): a busy machine can starve it", what, nice)
-        return False
-
 
 def realtime_thread(priority: int, what: str) -> bool:
     """The calling thread: 1 us timer slack (sleeps end close to their deadline) and

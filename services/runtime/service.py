@@ -52,7 +52,7 @@ from jara_arm.schema.operations import Operation
 from .cell import SERVICE_IDENTITY
 from .heartbeat import Heartbeat, Pulse
 from .logs import ZenohLogHandler, setup_stderr
-from .realtime import NORMAL_NICE, realtime_process, weighted_process
+from .realtime import realtime_process
 from .rpc import Answer, InterfaceServer, QueryServer
 from .timing import Health, add_health_arguments, health_from_args
 from .zenoh_args import add_zenoh_arguments, config_from_args
@@ -282,8 +282,6 @@ def run(service: ArmService, argv: Sequence[str] | None = None) -> int:
         parser.error(str(exc))
     stop = stop_event(args.exit_with_parent)
     name = cls.SERVICE.value
-    if args.realtime_priority <= 0:  # before the session: Zenoh's threads inherit it
-        weighted_process(NORMAL_NICE, f"{name} ({args.arm})")
     try:
         service.before_session(model, options)
         _serve(service, conf, arms, health, stop, options, args.realtime_priority)
