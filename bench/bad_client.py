@@ -1,9 +1,12 @@
 """A client that behaves badly, as users' tools do: slow, frozen or flooding. Plain Zenoh only.
 
-    python bench/bad_client.py slow    --connect EP [--key 'JARA_ARM/**'] [--delay-ms 20]
-    python bench/bad_client.py frozen  --connect EP [--key 'JARA_ARM/*/Servo/posFeedback']
-    python bench/bad_client.py flood   --connect EP [--key 'JARA_ARM/arm0/Common/getState'] [--sessions 10]
+    python bench/bad_client.py slow    --connect EP [--key KEY] [--delay-ms 20]
+    python bench/bad_client.py frozen  --connect EP [--key KEY]
+    python bench/bad_client.py flood   --connect EP [--key KEY] [--sessions 10]
     (every kind also takes --config FILE: a Zenoh configuration, e.g. a secure cell identity's .json5)
+
+Default keys (from ``schema/keys.py``): every key of every arm (slow), every arm's
+``Servo/posFeedback`` (frozen), arm0's ``Common/getState`` (flood).
 
 - ``slow``: subscribes to ``--key`` and spends ``--delay-ms`` in each sample's callback, on Zenoh's own
   thread, as a GUI or logger on a busy PC does (the very thing the Zenoh guide says not to do).
@@ -13,8 +16,8 @@
   on ``--key`` as fast as the replies come.
 
 Prints ``bad client ready`` once its subscription or first reply is in place, then, every second,
-``bad client: N samples`` (or replies). Runs until killed. Not part of the package: users' tools
-import nothing of ours, and neither does this.
+``bad client: N samples`` (or replies). Runs until killed. Besides the default keys of the schema it
+uses nothing of ours: plain Zenoh sessions, as users' tools are.
 """
 
 from __future__ import annotations
@@ -26,6 +29,12 @@ import threading
 import time
 
 import zenoh
+
+from jara_arm.schema.keys import ANY_ARM, ArmKeys, any_arm_every_key
+from jara_arm.schema.operations import OP, Interface
+
+DEFAULT_KEYS = {"slow": any_arm_every_key(), "frozen": ArmKeys(ANY_ARM).pos_feedback,
+                "flood": ArmKeys().interface(Interface.COMMON, OP.getState)}
 
 
 def session(args: argparse.Namespace) -> zenoh.Session:
@@ -41,13 +50,11 @@ def main() -> int:
     ap.add_argument("kind", choices=("slow", "frozen", "flood"))
     ap.add_argument("--connect", required=True, metavar="ENDPOINT")
     ap.add_argument("--config", metavar="FILE")
-    ap.add_argument("--key", help="default: JARA_ARM/** (slow), JARA_ARM/*/Servo/posFeedback (frozen), "
-                    "JARA_ARM/arm0/Common/getState (flood)")
+    ap.add_argument("--key", help="default: " + ", ".join(f"{k} ({kind})" for kind, k in DEFAULT_KEYS.items()))
     ap.add_argument("--delay-ms", type=float, default=20.0, help="slow: time spent per sample [ms]")
     ap.add_argument("--sessions", type=int, default=10, help="flood: how many clients (sessions) [1..100]")
     args = ap.parse_args()
-    key = args.key or {"slow": "JARA_ARM/**", "frozen": "JARA_ARM/*/Servo/posFeedback",
-                       "flood": "JARA_ARM/arm0/Common/getState"}[args.kind]
+    key = args.key or DEFAULT_KEYS[args.kind]
     if not 1 <= args.sessions <= 100:
         ap.error(f"--sessions {args.sessions}: between 1 and 100")
     count = [0]

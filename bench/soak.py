@@ -109,8 +109,8 @@ def start_bad_client(kind: str, port: int) -> subprocess.Popen:
     assert proc.stdout is not None
     if "ready" not in proc.stdout.readline():
         raise RuntimeError(f"bad client {kind} did not start")
-    # Its output is not read any more: a full pipe would stop it, so it goes nowhere.
-    threading.Thread(target=lambda: proc.stdout and proc.stdout.read(), daemon=True).start()
+    # Its output is not needed any more, but a full pipe would stop it: read and forgotten.
+    threading.Thread(target=collections.deque, args=(proc.stdout, 0), daemon=True).start()
     return proc
 
 

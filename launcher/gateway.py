@@ -62,6 +62,12 @@ GATEWAY_WAIT_BEFORE_CLOSE = 500_000
 BUS_WAIT_BEFORE_DROP = 50
 
 
+def _deep_queues(conf: zenoh.Config) -> None:
+    """:data:`GATEWAY_QUEUE_BATCHES` batches in every queue of ``conf``'s links below real time."""
+    for priority in ("interactive_low", "data_high", "data", "data_low", "background"):
+        conf.insert_json5(f"transport/link/tx/queue/size/{priority}", str(GATEWAY_QUEUE_BATCHES))
+
+
 def gateway_config(conf: zenoh.Config, zid: str = GATEWAY_ZID) -> None:
     """Make ``conf`` (a router's) a client gateway's: best effort to every client, never waiting on one.
 
@@ -75,8 +81,7 @@ def gateway_config(conf: zenoh.Config, zid: str = GATEWAY_ZID) -> None:
     conf.insert_json5(f"{queue}/drop/wait_before_drop", str(GATEWAY_WAIT_BEFORE_DROP))
     conf.insert_json5(f"{queue}/drop/max_wait_before_drop_fragments", str(GATEWAY_WAIT_FRAGMENTS))
     conf.insert_json5(f"{queue}/block/wait_before_close", str(GATEWAY_WAIT_BEFORE_CLOSE))
-    for priority in ("interactive_low", "data_high", "data", "data_low", "background"):
-        conf.insert_json5(f"transport/link/tx/queue/size/{priority}", str(GATEWAY_QUEUE_BATCHES))
+    _deep_queues(conf)
     reply = Traffic.REPLY.value
     conf.insert_json5("qos/network", json.dumps([
         # Batched, not express: a queue slot then holds hundreds of samples, not one.
@@ -99,8 +104,7 @@ def bus_config(conf: zenoh.Config, gateways: Sequence[str] = (GATEWAY_ZID,)) -> 
     conf.insert_json5(f"{queue}/drop/wait_before_drop", str(BUS_WAIT_BEFORE_DROP))
     # Replies to clients travel best effort (their queries were made so): room for a burst of them, and
     # of samples, on the link to a gateway that falls behind for a moment (memory taken only when used).
-    for priority in ("interactive_low", "data_high", "data", "data_low", "background"):
-        conf.insert_json5(f"transport/link/tx/queue/size/{priority}", str(GATEWAY_QUEUE_BATCHES))
+    _deep_queues(conf)
     if gateways:
         conf.insert_json5("qos/network", json.dumps([
             {"id": "to-gateways-best-effort", "zids": list(gateways), "messages": ["put", "delete"],

@@ -55,7 +55,7 @@ class UpSettings:
     hidden_obstacles: tuple[str, ...] = ()
     demo: bool = False  # once ready, run ``jara-arm demo`` on every arm (its output on stdout)
     health: Health = SAME_HOST  # passed to every service (--timing, --hung-after)
-    #: more endpoints of the cell bus (``--bus``), for services of other hosts; the private one is always there
+    #: more endpoints of the cell bus (``--bus-listen``), for services of other hosts; the private one is always there
     bus: tuple[str, ...] = ()
 
 
@@ -228,7 +228,7 @@ def start_order() -> list[ServiceSpec]:
 def run_up(settings: UpSettings, signals: StopSignals) -> int:
     """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
     settings.router.config_object()  # RouterError (a usage error) for endpoints or a config the gateway cannot take
-    with private_bus() as bus, open_router(bus_settings(settings, bus)) as session:
+    with private_bus() as bus, open_router(cell_bus := bus_settings(settings, bus)) as session:
         # The bus carries the 1 kHz position stream from planner to servo: starved by
         # normal-priority work, it would let the servo FIFO run dry.
         realtime_process(ROUTER_RT_PRIORITY, "router", skip_caller=True)
@@ -243,8 +243,8 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
         readiness = Readiness(settings, presence, gateway_joined)
         # The gateway first, so that it stops last: clients see the services leave.
         supervisor = Supervisor([[gateway_child(settings, bus)], *[children(s, settings, bus) for s in start_order()]])
-        log.info("cell bus on %s; client gateway on %s; starting %d process(es)", ", ".join(bus_settings(
-            settings, bus).endpoints()), ", ".join(gateway.endpoints()), len(supervisor.children))
+        log.info("cell bus on %s; client gateway on %s; starting %d process(es)", ", ".join(cell_bus.endpoints()),
+                 ", ".join(gateway.endpoints()), len(supervisor.children))
         demos: list[subprocess.Popen] = []
         try:
             if not signals.stop.is_set():  # a Ctrl-C while the router opened

@@ -24,7 +24,7 @@ from jara_arm import robots
 from jara_arm.launcher.certs import init_cell, issue
 from jara_arm.launcher.client import ArmClient
 from jara_arm.schema import messages
-from jara_arm.schema.keys import Service, any_arm_alarm
+from jara_arm.schema.keys import Service, any_arm_alarm, any_arm_every_key
 from jara_arm.schema.operations import OP
 from jara_arm.schema.roles import Role
 from jara_arm.services.runtime.wire import decode_sample
@@ -146,7 +146,7 @@ def received(proc: Proc) -> int:
 
 def test_a_slow_subscriber_of_everything_hurts_nobody(cell: tuple[Cell, int]) -> None:
     c, port = cell
-    with bad_client("slow", endpoint(port), "--key", "JARA_ARM/**", "--delay-ms", "20") as slow:
+    with bad_client("slow", endpoint(port), "--key", any_arm_every_key(), "--delay-ms", "20") as slow:
         c.swing(15.0)
         # It really was subscribed, and really slow: 20 ms a sample is at most 50 a second.
         assert 0 < received(slow) <= 50 * 20, slow.output
@@ -185,7 +185,7 @@ def test_a_slow_observer_of_a_secure_cell_hurts_nobody(tmp_path: Path) -> None:
         conf = zenoh.Config.from_file(str(cell_dir.zenoh_file("alice")))
         conf.insert_json5("connect/endpoints", f'["{ep}"]')
         with zenoh.open(conf) as session, bad_client(
-                "slow", ep, "--config", str(cell_dir.zenoh_file("olga")), "--key", "JARA_ARM/**") as olga:
+                "slow", ep, "--config", str(cell_dir.zenoh_file("olga")), "--key", any_arm_every_key()) as olga:
             c = Cell(session, proc)
             c.start()
             c.swing(15.0)
