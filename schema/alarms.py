@@ -85,6 +85,10 @@ ALARM_TABLE: tuple[AlarmInfo, ...] = (
     AlarmInfo(AlarmCode.MONITOR_HUNG, AlarmType.FAULT,
               "the alarm monitor hangs: token up, but its heartbeat silent or a loop of it stuck: "
               "detected by the servo"),
+    AlarmInfo(AlarmCode.MOTION_NOT_COMPLETED, AlarmType.WARNING,
+              "an accepted motion did not run to its end: discarded because of an alarm (the servo refusing "
+              "one of its commands raises one too); names the motions and why. A client's stop and servoOFF "
+              "are not alarms"),
 )
 
 #: Alarm type of every code, from :data:`ALARM_TABLE`.

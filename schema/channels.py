@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
-from . import alarms, messages, planner, wire_types
+from . import alarms, messages, motion, planner, wire_types
 from . import wire_types as w
 from .keys import ArmKeys, key_info
 from .operations import Interface
@@ -31,12 +31,13 @@ def _message_types() -> Mapping[str, StructType[Any]]:
     """By key-table row (``key_info(key).key``): the type of every message published on it."""
     a = ArmKeys("ARM")
     pairs: tuple[tuple[str, StructType[Any]], ...] = (
-        (a.pos_cmd, w.TIMED_JOINT_POS), (a.pos_block, messages.POSITION_BLOCK), (a.pos_feedback, w.TIMED_JOINT_POS),
+        (a.pos_cmd, w.TIMED_JOINT_POS), (a.pos_feedback, w.TIMED_JOINT_POS), (a.pos_target, w.TIMED_JOINT_POS),
         (a.state, messages.STATE_MESSAGE), (a.alarm, messages.ALARM_EVENT), (a.log(), messages.LOG_RECORD),
         (a.servo_status, messages.SERVO_STATUS), (a.planner_progress, planner.PLANNER_PROGRESS),
         (a.servo_health, messages.LOOP_HEALTH), (a.monitor_alarms, alarms.ALARM_LIST),
         (a.monitor_report, alarms.ALARM_REPORT), (a.command_settings, planner.MOTION_SETTINGS),
         (a.heartbeat(), alarms.HEARTBEAT), (a.servo_world, messages.SERVO_WORLD), (a.planner_path, planner.PLANNED_PATH),
+        (a.servo_motion, motion.MOTION_PROGRESS),
         *((a.traced(q), messages.CALL_TRACE) for q in (*(a.interface(i) for i in Interface), a.servo_common(),
                                                       a.monitor_common())),
     )
@@ -50,7 +51,7 @@ MESSAGE_TYPES: Mapping[str, StructType[Any]] = _message_types()
 def definitions() -> dict[str, dict[str, Any]]:
     """Every named type and message as JSON Schema, by name (the ``$defs`` of the generated schema)."""
     defs = {t.name: t.json_schema() for t in wire_types.NAMED_TYPES}
-    defs.update({m.name: m.json_schema() for m in messages.MESSAGES + planner.MESSAGES + alarms.MESSAGES})
+    defs.update({m.name: m.json_schema() for m in messages.MESSAGES + planner.MESSAGES + motion.MESSAGES + alarms.MESSAGES})
     return defs
 
 

@@ -34,6 +34,7 @@ class AlarmCode(enum.IntEnum):
     heartbeat went silent or names a stuck loop (the process hangs). Every one
     is a FAULT. The alarm monitor watches the servo, the planner and the
     command service; the servo watches the alarm monitor (0x403, 0x413).
+    0x420 is a WARNING: an accepted motion did not run to its end.
     """
 
     EMERGENCY_STOP = 0x01
@@ -49,6 +50,9 @@ class AlarmCode(enum.IntEnum):
     COMMAND_HUNG = 0x412  # token up, but its heartbeat silent, or a loop of it stuck
     MONITOR_LOST = 0x403  # the alarm monitor's token was deleted (detected by the servo)
     MONITOR_HUNG = 0x413  # the alarm monitor's token up, its heartbeat silent or stuck (servo)
+    #: WARNING: an accepted motion was discarded before its end by anything but a client's stop
+    #: (an alarm, the servo refusing a command of it); the description names the motions and why
+    MOTION_NOT_COMPLETED = 0x420
 
 
 class StateBit(enum.IntFlag):

@@ -129,17 +129,18 @@ class ArmKeys:
         return f"{self.root}/Servo/posCmd"
 
     @property
-    @_key('subscriber (internal)', 'servo', "`PositionBlock` from the planner: several cycles' commands into the same SyncFIFO",
-          KeyEncoding.MSGPACK, Traffic.STREAM)
-    def pos_block(self) -> str:
-        """``PositionBlock``: the planner's commands into the same SyncFIFO, a few cycles per message."""
-        return f"{self.root}/Servo/posBlock"
-
-    @property
     @_key('publisher', 'servo', '`TimedJointPos`, every cycle', KeyEncoding.MSGPACK, Traffic.FEEDBACK)
     def pos_feedback(self) -> str:
         """``TimedJointPos`` measured every cycle by the servo."""
         return f"{self.root}/Servo/posFeedback"
+
+    @property
+    @_key('publisher', 'servo', '`TimedJointPos`, each cycle that follows a command, only while something subscribes',
+          KeyEncoding.MSGPACK, Traffic.INFO)
+    def pos_target(self) -> str:
+        """``TimedJointPos``: the command the servo followed in a cycle (from its interpolator or the
+        SyncFIFO), beside the measured ``posFeedback``; nothing while it holds or brakes by itself."""
+        return f"{self.root}/Servo/posTarget"
 
     @property
     @_key('publisher', 'command', '`StateMessage` `{state, ...}` on every change', KeyEncoding.JSON, Traffic.STATE)
@@ -232,6 +233,25 @@ class ArmKeys:
     def planner_progress(self) -> str:
         """``PlannerProgress`` from the planner, on every change and at 10 Hz."""
         return f"{self.root}/Planner/progress"
+
+    @property
+    @_key('queryable (internal)', 'servo', '`Trajectory` → `MotionReply`', KeyEncoding.AS_REQUEST, Traffic.REPLY)
+    def servo_trajectory(self) -> str:
+        """Queryable of the servo: one accepted motion's joint samples into its interpolator (schema.motion)."""
+        return f"{self.root}/Servo/trajectory"
+
+    @property
+    @_key('queryable (internal)', 'servo', '`MotionControl` → `MotionReply`', KeyEncoding.AS_REQUEST, Traffic.REPLY)
+    def servo_motion_control(self) -> str:
+        """Queryable of the servo: pause, resume, stop, abort and the speed override (schema.motion)."""
+        return f"{self.root}/Servo/motionControl"
+
+    @property
+    @_key('publisher (internal)', 'servo', '`MotionProgress`, on every change and at 10 Hz', KeyEncoding.MSGPACK,
+          Traffic.CONTROL)
+    def servo_motion(self) -> str:
+        """``MotionProgress``: the servo interpolator's buffered motions (schema.motion)."""
+        return f"{self.root}/Servo/motion"
 
     @property
     @_key('publisher (internal)', 'planner', '`PlannedPath`: the control point polyline of each accepted motion',

@@ -10,7 +10,6 @@ import dataclasses
 from typing import Any
 
 import msgpack
-import numpy as np
 
 from . import wire_types as w
 from .errors import WireError
@@ -106,20 +105,6 @@ class LoopHealth:
 
 
 @dataclasses.dataclass(frozen=True)
-class PositionBlock:
-    """``Servo/posBlock``: consecutive position commands for the SyncFIFO, one per cycle, in order.
-
-    What the planner streams: one message per few cycles instead of one per
-    cycle (``Servo/posCmd``) costs the planner, the router and the servo a
-    fraction of the work for the same commands.
-    """
-
-    tm: Time = wire(w.TIME, doc="when the first command is due at the servo")
-    pos: tuple[tuple[float, ...], ...] = wire(w.SeqType("JointPosSeq", w.JOINT_POS), "rad or m",
-                                              "one JointPos per cycle, in order")
-
-
-@dataclasses.dataclass(frozen=True)
 class CallTrace:
     """``trace/<served>/<op>``: one call a service answered, published only while something subscribes.
 
@@ -163,8 +148,6 @@ ALARM_EVENT = struct(AlarmEvent, strict=False)
 LOG_RECORD = struct(LogRecord, strict=False)
 SERVO_STATUS = struct(ServoStatus, strict=False, doc="Internal: servo loop status, published every few cycles.")
 LOOP_HEALTH = struct(LoopHealth, strict=False, doc="Internal: servo loop timing over the last window (about 1 s).")
-POSITION_BLOCK = struct(PositionBlock, strict=False,
-                        doc="Internal: consecutive position commands for the servo's SyncFIFO, one per cycle.")
 CALL_TRACE = struct(CallTrace, strict=False, doc="A call answered on Common, Middle, Servo/Common or Monitor/Common "
                     "and its reply, as the serving service saw them.")
 SERVO_WORLD = struct(ServoWorld, strict=False, doc="Internal: the servo's robot model and obstacles, Servo/world.")
@@ -192,47 +175,8 @@ def servo_status_payload(status: ServoStatus) -> bytes:
     return payload
 
 
-def position_block_payload(due: float, rows: list[list[float]]) -> bytes:
-    """MessagePack ``PositionBlock`` (``due`` [s] Unix time) without the generic encoder's
-    per-member work; tested to decode as ``POSITION_BLOCK``."""
-    sec = int(due // 1)
-    nsec = int(round((due - sec) * 1e9))  # the fraction alone: due * 1e9 would lose 100 ns
-    if nsec >= 1_000_000_000:
-        sec, nsec = sec + 1, nsec - 1_000_000_000
-    payload: bytes = msgpack.packb({"tm": {"sec": sec, "nsec": nsec}, "pos": rows})
-    return payload
-
-
-
-def position_block_rows(payload: bytes, dof: int) -> np.ndarray:
-    """The ``pos`` rows [rad or m] of a MessagePack ``PositionBlock`` as an (n, ``dof``) array,
-    checked as ``POSITION_BLOCK`` checks them (finite numbers, ``dof`` per row) without its
-    per-number work: the servo reads 250 of these a second per arm. Raises WireError."""
-    try:
-        msg = msgpack.unpackb(payload, raw=False, strict_map_key=True)
-    except Exception as exc:  # every parser error is the sender's
-        raise WireError("payload", f"not valid MSGPACK: {exc}") from None
-    if not isinstance(msg, dict):
-        raise WireError("", "expected a map (PositionBlock)")
-    POSITION_BLOCK.members[0].type.decode(msg.get("tm"), "tm")
-    pos = msg.get("pos")
-    if not isinstance(pos, list) or not all(isinstance(row, list) for row in pos):
-        raise WireError("pos", "expected a list of lists of numbers (JointPosSeq)")
-    for row in pos:
-        if len(row) != dof:
-            raise WireError("pos", f"expected rows of {dof} axes, got {len(row)}")
-    try:
-        rows = np.array(pos, dtype=float).reshape(len(pos), dof)
-    except (TypeError, ValueError) as exc:
-        raise WireError("pos", f"expected rows of numbers: {exc}") from None
-    if any(isinstance(x, bool) for row in pos for x in row):
-        raise WireError("pos", "expected numbers, got a boolean")
-    if not np.isfinite(rows).all():
-        raise WireError("pos", "must be finite")
-    return rows
-
 #: Every message type, for the generated JSON Schema.
 MESSAGES: tuple[StructType[Any], ...] = (
-    w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_STATUS, LOOP_HEALTH, POSITION_BLOCK, CALL_TRACE,
+    w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_STATUS, LOOP_HEALTH, CALL_TRACE,
     WORLD_BOX, SERVO_WORLD,
 )

@@ -84,11 +84,14 @@ class ControlAction(enum.StrEnum):
     RESUME = "resume"  # continue the same path
     STOP = "stop"  # decelerate along the path, discard the queue
     ABORT = "abort"  # the servo is off or faulted: forget everything, send nothing more
+    OVERRIDE = "override"  # Ext/setSpeedOverride: scale the speed of every motion, the running one too
 
 
 @dataclasses.dataclass(frozen=True)
 class ControlRequest:
     action: str = wire(w.STRING, doc=" | ".join(a.value for a in ControlAction))
+    #: OVERRIDE only: the speed override, 0 (hold on the path) .. 100 (as planned)
+    ratio: float = wire(w.DOUBLE, "%", default=100.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,6 +107,7 @@ class PlannerProgress:
     streaming: bool = wire(w.BOOLEAN)  # position commands are being sent
     started: Time = wire(w.TIME)  # when this planner process started: a restarted planner is newer
     seq: int = wire(w.ULONG)  # grows with every change of the members above but ``tm``
+    override: float = wire(w.DOUBLE, "%", "the servo's speed override (Ext/setSpeedOverride)", default=100.0)
 
 
 PLANNER_PROGRESS = struct(PlannerProgress, strict=False, doc="Internal: planner -> everyone, Planner/progress.")

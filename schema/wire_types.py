@@ -203,7 +203,7 @@ class Member:
     type: WireType[Any]
     unit: str = ""
     doc: str = ""
-
+    optional: bool = False  # may be left out: the dataclass field's default stands in
 
 _WIRE = "jara_arm.wire"  # the dataclass field metadata key of wire()
 
@@ -240,6 +240,8 @@ class StructType(WireType[T]):
         kwargs = {}
         for m in self.members:
             if m.name not in value:
+                if m.optional:
+                    continue
                 raise WireError(f"{prefix}{m.name}", f"missing member of {self.name}")
             kwargs[m.name] = m.type.decode(value[m.name], f"{prefix}{m.name}")
         return self.cls(**kwargs)
@@ -259,7 +261,7 @@ class StructType(WireType[T]):
                 s = {**s, "description": desc}
             props[m.name] = s
         out: dict[str, Any] = {"type": "object", "properties": props,
-                               "required": [m.name for m in self.members]}
+                               "required": [m.name for m in self.members if not m.optional]}
         if self.strict:
             out["additionalProperties"] = False
         if self.doc:
@@ -285,7 +287,8 @@ def struct(cls: type[T], *, strict: bool = True, doc: str = "") -> StructType[T]
         if _WIRE not in f.metadata:
             raise TypeError(f"{cls.__name__}.{f.name}: declare its wire type with wire(...)")
         type_, unit, meaning = f.metadata[_WIRE]
-        members.append(Member(f.name, type_, unit, meaning))
+        optional = f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+        members.append(Member(f.name, type_, unit, meaning, optional))
     return StructType(cls, tuple(members), strict=strict, doc=doc)
 
 

@@ -1,9 +1,9 @@
-"""The planner service as a real process, streaming to a real servo process.
+"""The planner service as a real process, handing its motions to a real servo process.
 
 A servo and a planner per robot, started once per module; the test session is
 a peer of both. Motions go to ``Planner/plan`` as the command service would
-send them (``MotionRequest`` with a settings snapshot); the planner's commands
-(``Servo/posCmd``) and the servo's feedback are recorded and checked with
+send them (``MotionRequest`` with a settings snapshot); the commands the servo
+followed (``Servo/posTarget``) and its feedback are recorded and checked with
 Pinocchio forward kinematics.
 """
 
@@ -41,7 +41,6 @@ from jara_arm.schema.planner import (
 )
 from jara_arm.schema.types import CarPosWithElbow, LimitValue
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
-from jara_arm.services.planner.servo_fifo import FifoEstimate
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 from .support import (
@@ -97,7 +96,7 @@ class Answer:
 class Recorded:
     """What was seen on the wire since the last drain."""
 
-    cmd_t: np.ndarray  # [s] arrival time of each position command
+    cmd_t: np.ndarray  # [s] the time each followed command's cycle stands for (Servo/posTarget's tm)
     cmd: np.ndarray  # (N, dof) position commands
     fb: np.ndarray  # (M, dof) feedback
     fb_tm: np.ndarray  # (M,) [s] the time each feedback sample stands for (a lost one leaves a gap)
@@ -115,8 +114,7 @@ class Rig:
         self.client = Client(session)
         self.kin = Kinematics(self.model)
         self._lock = threading.Lock()
-        self._cmds: list[tuple[float, bytes]] = []
-        self._cmd_sub = session.declare_subscriber(self.keys.pos_block, self._on_cmd)
+        self._cmd_sub = session.declare_subscriber(self.keys.pos_target, zenoh.handlers.FifoChannel(1 << 17))
         self._fb = session.declare_subscriber(self.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
         self._status = session.declare_subscriber(self.keys.servo_status, zenoh.handlers.FifoChannel(1 << 14))
         self._status_latest = session.declare_subscriber(self.keys.servo_status,
@@ -124,10 +122,6 @@ class Rig:
         self._progress = session.declare_subscriber(self.keys.planner_progress, zenoh.handlers.RingChannel(1))
         self.last_progress: PlannerProgress | None = None
         self.last_motion = 0  # id of the last motion accepted
-
-    def _on_cmd(self, sample: zenoh.Sample) -> None:
-        with self._lock:
-            self._cmds.append((time.time(), sample.payload.to_bytes()))
 
     # -- calls ------------------------------------------------------------------------
     def settings(self, **changes: Any) -> MotionSettings:
@@ -220,8 +214,9 @@ class Rig:
         return p
 
     def drain(self) -> Recorded:
-        with self._lock:
-            cmds, self._cmds = self._cmds, []
+        cmds = []
+        while (s := self._cmd_sub.try_recv()) is not None:
+            cmds.append(codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()))
         fb, fb_tm = [], []
         while (s := self._fb.try_recv()) is not None:
             sample = codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes())
@@ -230,11 +225,9 @@ class Rig:
         status = []
         while (s := self._status.try_recv()) is not None:
             status.append(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
-        # The planner streams PositionBlocks: every row is one command, arrived with its block.
-        blocks = [(t, codec.decode_message(messages.POSITION_BLOCK, b).pos) for t, b in cmds]
-        cmd = [row for _, rows in blocks for row in rows]
-        return Recorded(np.array([t for t, rows in blocks for _ in rows]),
-                        np.array(cmd).reshape(-1, self.model.dof),
+        # The servo's applied commands (Servo/posTarget), one per cycle that followed one.
+        return Recorded(np.array([c.tm.to_seconds() for c in cmds]),
+                        np.array([c.pos for c in cmds]).reshape(-1, self.model.dof),
                         np.array(fb).reshape(-1, self.model.dof), np.array(fb_tm), status)
 
     def reset(self) -> None:
@@ -503,7 +496,8 @@ class TestIiwa:
         assert rig.client.servo(OP.servoOFF).id == ReturnCode.OK
         p = rig.wait_progress("aborted", lambda p: not p.queued and not p.streaming, 2.0)
         assert p.lastDiscarded == queued.motion
-        rig.planner_proc.wait_for_line("abort (the servo is off)")
+        # A client's servoOFF is not an alarm: the servo says it in its log.
+        rig.servo_proc.wait_for_line(f"servo off: motions [{reply.motion}, {queued.motion}] discarded before their end")
         refused = rig.plan(OP.movePTPJointRel, {"jointPoints": [0.1] + [0.0] * 6})
         assert refused.id == ReturnCode.NOT_SV_ON_ERR and "off" in refused.comment
 
@@ -681,21 +675,6 @@ def test_family_rules(name: str, op: str, code: ReturnCode):
     if name == "scara4":  # only the rotation about Z counts (the CIRC target has none)
         yaw = 0.0 if op == OP.moveCircularCartesianRel else 0.2
         assert np.abs(T1[:3, :3] - rot_z(yaw) @ T0[:3, :3]).max() < 1e-5
-
-
-def test_fifo_estimate_extrapolates_and_reanchors():
-    fifo = FifoEstimate(DT)
-    fifo.sent(100.0, 12)
-    assert fifo.depth(100.005) == pytest.approx(7.0)
-    assert fifo.depth(100.1) == 0.0  # never below empty
-    fifo.sent(100.1, 10)
-    fifo.sent(100.1048, 3)
-    # The servo counted 8 for its cycle at 100.103; the last 3 are surely not in yet;
-    # 2 cycles since the stamp: 8 + 3 - 2.
-    fifo.report(8, 100.103, 100.105)
-    assert fifo.depth(100.105) == pytest.approx(9.0)
-    fifo.report(4, 50.0, 100.106)  # a stamp from another clock: timed by its arrival
-    assert fifo.depth(100.106) == pytest.approx(4.0)
 
 
 def test_the_planner_has_a_method_per_motion_operation():

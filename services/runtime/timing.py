@@ -24,26 +24,22 @@ from typing import Final
 
 # -- at stake: decided inside the servo, in cycles of cmdCycle -------------------------
 
-#: Cycles the simulated servo waits, mid-motion, for a late command before it stops the arm
-#: as for a dry FIFO [cycles]; simulated time stands still meanwhile. 10 ms covers a
-#: scheduling hiccup of the planner; the planner's lead (below) covers the rest.
+#: Cycles the simulated servo waits, mid-motion, for a late command of a low-level client's
+#: stream (``Servo/posCmd``) before it stops the arm as for a dry FIFO [cycles]; simulated
+#: time stands still meanwhile. Such a stream crosses the network one command per cycle,
+#: and 10 ms covers a scheduling hiccup of the client or the router. The planner's motions
+#: never need it: the servo interpolates them from its own buffer (``servo/interpolator.py``).
 UNDERRUN_GRACE: Final = 10
 #: Behind schedule by more than this, the servo loop stops catching up and restarts its
 #: clock [s]: catching up 100 cycles back to back would step the arm 100 times at once.
 RESYNC_AFTER: Final = 0.1
-#: Commands the planner keeps in the servo's FIFO ahead of the servo [s]: the longest
-#: stall of the planner the stream rides through; pause and stop still act within 20 ms.
-STREAM_LEAD: Final = 0.016
-#: While it streams, the planner tops the servo's FIFO up to STREAM_LEAD this often, in one
-#: message [s]: the FIFO then holds between 12 and 16 ms, and the planner, the router and the
-#: servo handle 250 messages a second instead of 1000.
-STREAM_BLOCK: Final = 0.004
-#: A LIN / CIRC from rest may stream this much of its motion [s] before the whole of it is
+#: A LIN / CIRC from rest may run this much of its motion [s] before the whole of it is
 #: planned and checked (the early start): its first command goes out after its first knot
-#: interval, not all of them. With STREAM_LEAD, the rest's plan then has ~14 ms after the head
-#: went out (it takes 6-12 ms here); a jerk-limited start covers ~0.1 mm in 30 ms and braking
-#: from there within the same limits ~1.2 mm more: 1.31 mm in all for the 0.5 m LIN at 0.25 m/s
-#: at the iiwa's shortest acceleration time, what a motion refused late can have moved.
+#: interval, not all of them. The servo runs such a head slowed down so that it could still
+#: slow to 0 before its end (``servo/interpolator.head_cap``): a rest planned late slows the
+#: arm, never stops it. A jerk-limited start covers ~0.1 mm in 30 ms and slowing down from
+#: there ~1.2 mm more: 1.31 mm in all for the 0.5 m LIN at 0.25 m/s at the iiwa's shortest
+#: acceleration time, what a motion refused late can have moved.
 EARLY_START: Final = 0.03
 #: Servo/status (measured speeds, efforts, joints) every this many cycles [cycles]: the
 #: alarm monitor's overload (3 samples) and overspeed (2 samples) detectors count these.
@@ -62,9 +58,10 @@ MONITOR_POLL: Final = 0.01
 #: The command service's state watcher drains its inputs this often [s]: the delay of a
 #: state change (bit 0x02 when a motion ends) seen by getState.
 WATCHER_POLL: Final = 0.01
-#: The planner's streamer wakes this often while it has nothing to send [s]: the delay
-#: before a planned motion starts streaming.
-STREAMER_IDLE: Final = 0.01
+#: While the servo slows down for a stop, the planner waits at most this long to learn where the
+#: arm stopped before it plans the next motion from there [s]: a stop from full speed takes
+#: about a min accel time (0.2-0.5 s for the robot models here).
+STOP_WAIT: Final = 2.0
 
 # -- queries between services ---------------------------------------------------------
 

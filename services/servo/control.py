@@ -115,6 +115,11 @@ class ControlLaw:
         """[rad or m] the joint soft limits in force, one per arm axis."""
         return self._soft_limits
 
+    @property
+    def max_accel(self) -> np.ndarray:
+        """[rad/s² or m/s²] each wire axis' rated acceleration: rated speed / min accel time."""
+        return self._amax
+
     @soft_limits.setter
     def soft_limits(self, limits: tuple[LimitValue, ...]) -> None:
         # Kept as arrays too: every command is checked against them.

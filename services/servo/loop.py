@@ -40,10 +40,11 @@ from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmList, AlarmReport, format_code, is_newer
-from jara_arm.schema.codes import AlarmCode, AlarmType, StateBit
+from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.motion import MOTION_PROGRESS, MotionAction, MotionProgress, MotionReply, Trajectory, TrajectoryRefusal
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
@@ -59,6 +60,7 @@ from jara_arm.services.runtime.timing import (
 from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .control import RAN_DRY, REST_SPEED, STOPPED, ControlLaw, Refusal
+from .interpolator import Interpolator, prepare
 from .monitor_watch import MonitorWatch
 from .world import World
 
@@ -75,6 +77,8 @@ LIMIT_TOLERANCE = 1e-3
 #: A latch the alarm monitor has not listed yet is reported again this often [s]
 #: (the monitor was down or restarted and lost it).
 REPORT_AGAIN = 0.5
+#: ``Servo/motion`` at least this often [s], and at once on every change.
+MOTION_EVERY = 0.1
 
 _SERVO_ON, _MOVING, _ALARM = int(StateBit.SERVO_ON), int(StateBit.MOVING), int(StateBit.ALARM)
 
@@ -117,6 +121,13 @@ class ServoLoop:
         pos, vel, eff = self.world.read()
         # The commanded state, the FIFO and any stop: the control law's (control.py).
         self.law = ControlLaw(model, pos)
+        # The accepted motions, whole, and the time scale they run at (interpolator.py).
+        self.interp = Interpolator(model.dof, self.dt)
+        self._from_client = False  # the last command came from a low-level client's SyncFIFO
+        self._started = Time.now()
+        self._motion_seq = 0
+        self._motion_said: tuple[object, ...] = ()
+        self._motion_at = 0.0  # [s] monotonic time of the last Servo/motion
         # What other threads read (replaced, never mutated, by the loop).
         self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
         self.state_bits = 0
@@ -138,7 +149,6 @@ class ServoLoop:
         self._entities = Entities()
         enter = self._entities.enter_context
         self._cmd_sub = enter(session.declare_subscriber(keys.pos_cmd, zenoh.handlers.FifoChannel(1 << 16)))
-        self._block_sub = enter(session.declare_subscriber(keys.pos_block, zenoh.handlers.FifoChannel(1 << 12)))
         self._estop_sub = enter(session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64)))
         self._alarms_sub = enter(session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256)))
         self._alarm_copy = AlarmListCopy(session, keys)
@@ -150,7 +160,13 @@ class ServoLoop:
         self._fb_matching = enter(self._fb_pub.publisher.declare_matching_listener(zenoh.handlers.FifoChannel(64)))
         self._fb_wanted = self._fb_pub.publisher.matching_status.matching
         self._fb_put = self._fb_pub.publisher.put  # every cycle: the labelled publisher's put, no wrapper call
+        # The applied target, every cycle too, only while someone subscribes (tests, recorders).
+        self._target_pub = enter(Publication(session, keys.pos_target, Encoding.MSGPACK))
+        self._target_matching = enter(self._target_pub.publisher.declare_matching_listener(
+            zenoh.handlers.FifoChannel(64)))
+        self._target_wanted = self._target_pub.publisher.matching_status.matching
         self._status_pub = enter(Publication(session, keys.servo_status, Encoding.MSGPACK))
+        self._motion_pub = enter(Publication(session, keys.servo_motion))
         self._health_pub = enter(Publication(session, keys.servo_health))
         self._stats = _Stats()
         self._period_ns = model.cmd_cycle_ms * 1_000_000
@@ -161,6 +177,7 @@ class ServoLoop:
     # -- life cycle ---------------------------------------------------------------
     def close(self) -> None:
         """Undeclare everything; call it once the clock has stopped."""
+        self.interp.release()
         self._alarm_copy.close()
         self._monitor.close()
         self._entities.close()  # in reverse: the matching listener before its publisher
@@ -254,14 +271,23 @@ class ServoLoop:
                 fut.set_exception(exc)
         self._take_commands()
         law = self.law
-        if (not law.fifo and law.moving and law.braking is None
+        interp = self.interp
+        if interp.active and law.braking is None and not interp.holding:
+            law.fifo.appendleft(interp.next())  # ahead of any client's: it is the one that runs
+            self._from_client = False
+        # Only a low-level client's stream may be late (over the network); the interpolator never is.
+        if (self._from_client and not law.fifo and law.moving and law.braking is None
                 and self.servo_on and not self.alarmed):
             if behind or self._late_cycles < UNDERRUN_GRACE:
                 self._late_cycles += 1
                 return False
         else:
             self._late_cycles = 0
+        consumed = law.consumed
         self._advance()
+        if interp.done:
+            self._log.debug("motions %s done", interp.done)
+            interp.done.clear()
         settled = not (self._still_for < SETTLED_CYCLES or law.braking is not None or law.fifo
                        or law.moving)
         if not settled:
@@ -278,6 +304,11 @@ class ServoLoop:
             self._fb_wanted = matching.matching
         if self._fb_wanted:
             self._fb_put(messages.timed_joint_pos_payload(tm_ns, self._pos_list))
+        while (matching := self._target_matching.try_recv()) is not None:
+            self._target_wanted = matching.matching
+        if self._target_wanted and law.consumed != consumed:
+            self._target_pub.publisher.put(messages.timed_joint_pos_payload(tm_ns, law.q.tolist()))
+        self._publish_motion()
         if self.latches:  # every cycle: the monitor learns at once that a cause has gone
             self._report_latches()
         if (k - self._status_k >= (STATUS_EVERY_AT_REST if settled else STATUS_EVERY)
@@ -288,7 +319,8 @@ class ServoLoop:
 
     def _take_commands(self) -> None:
         """Move what arrived into the FIFO (or drop it while commands are not accepted)."""
-        accepting = self.servo_on and not self.alarmed
+        # One source moves the arm at a time: while motions are buffered, a client's stream is dropped.
+        accepting = self.servo_on and not self.alarmed and not self.interp.active
         while (sample := self._cmd_sub.try_recv()) is not None:
             self.received += 1
             if not accepting:
@@ -303,18 +335,7 @@ class ServoLoop:
                 self._log.warning("dropped a malformed position command: %s", exc)
                 continue
             self.law.fifo.append(np.array(msg.pos))
-        while (sample := self._block_sub.try_recv()) is not None:
-            try:
-                rows = messages.position_block_rows(sample.payload.to_bytes(), self.model.dof)
-            except WireError as exc:
-                self.dropped += 1
-                self._log.warning("dropped a malformed position block: %s", exc)
-                continue
-            self.received += len(rows)
-            if not accepting:
-                self.dropped += len(rows)
-                continue
-            self.law.fifo.extend(rows)
+            self._from_client = True
 
     def _advance(self) -> None:
         """Choose this cycle's target (the control law) and act on what it says."""
@@ -358,12 +379,26 @@ class ServoLoop:
             self._report(latch)
 
     def _stop_for(self, code: int, kind: AlarmType) -> None:
+        if self.interp.active:
+            self._not_completed(self.interp.discard(), f"alarm {format_code(code)} stopped the arm")
         self.brake(before_limit=code == AlarmCode.SOFT_LIMIT_JOINT)
         if self.law.braking is None:  # already at rest: still, do not push on if blocked
             self._hold_where_it_is()
         if kind is AlarmType.FAULT and self.servo_on:
             self.servo_on = False
             self._log.warning("servo off after the %s fault", format_code(code))
+
+    def _not_completed(self, motions: list[int], why: str) -> None:
+        """The WARNING that accepted motions were discarded before their end (0x420)."""
+        description = f"motions {motions} discarded before their end: {why}"
+        code = int(AlarmCode.MOTION_NOT_COMPLETED)
+        if code in self.latches:  # one latch per code: the first one stands until cleared
+            self._log.warning("%s (alarm %s already active)", description, format_code(code))
+            return
+        latch = _Latch(Alarm(code, AlarmType.WARNING, description), False)
+        self.latches[code] = latch
+        self._log.warning("alarm %s %s: %s", format_code(code), AlarmType.WARNING.value, description)
+        self._report(latch)
 
     def _report(self, latch: _Latch) -> None:
         report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value)
@@ -426,6 +461,8 @@ class ServoLoop:
         return None
 
     def servo_off_now(self) -> None:
+        if self.interp.active:  # a client's request, not an alarm: said in the log only
+            self._log.warning("servo off: motions %s discarded before their end", self.interp.discard())
         if self.servo_on:
             self.servo_on = False
             self._log.info("servo off")
@@ -482,7 +519,7 @@ class ServoLoop:
     def _bits(self, vel: list[float]) -> int:
         bits = _SERVO_ON if self.servo_on else 0  # plain ints: enum arithmetic costs every cycle
         law = self.law
-        if (law.braking is not None or law.fifo or law.moving
+        if (law.braking is not None or law.fifo or law.moving or (self.interp.active and not self.interp.holding)
                 or max(vel) > REST_SPEED or min(vel) < -REST_SPEED):
             bits |= _MOVING
         if self.alarmed:
@@ -504,6 +541,68 @@ class ServoLoop:
             tuple(self.fb_vel.tolist()), tuple(self.fb_eff.tolist()), tuple(law.q.tolist()),
             law.soft_limits, tuple(self.fb_pos.tolist()))
         self._status_pub.put(messages.servo_status_payload(st))
+
+    # -- the interpolator (schema/motion.py) ------------------------------------------------
+    def submit(self, traj: Trajectory) -> MotionReply:
+        """``Servo/trajectory``: buffer one motion (or a head, or a head's rest). Raises WireError
+        (VALUE_ERR) for samples that do not fit the arm; a refusal is a reply, not an exception."""
+        rows = traj.rows()
+        if traj.dof != self.model.dof:
+            raise WireError("dof", f"the arm has {self.model.dof} axes (gripper included), got {traj.dof}")
+        buffered = prepare(traj.motion, rows, traj.final, self.dt, self.law.max_accel)  # here, not in the cycle
+
+        def apply() -> MotionReply:
+            law = self.law
+            if not self.servo_on or self.alarmed:
+                late, why = TrajectoryRefusal.STATE, "the servo is off" if not self.servo_on else "an alarm is active"
+            else:
+                at_rest = law.braking is None and not law.fifo and not (law.moving and self._from_client)
+                late, why = self.interp.submit(buffered, traj.epoch, traj.after, traj.splice, law.q, at_rest)
+            if late is None:
+                return MotionReply(0, f"OK: motion {traj.motion} {why}", "", self._motion_progress())
+            return MotionReply(int(ReturnCode.STATUS_ERR), why, late.value, self._motion_progress())
+
+        return self.call(apply)
+
+    def motion_control(self, action: MotionAction, ratio: float) -> MotionReply:
+        """``Servo/motionControl``: pause, resume, stop, abort or override (``ratio`` [%], checked)."""
+        if not 0.0 <= ratio <= 100.0:
+            raise WireError("ratio", f"the speed override is 0 .. 100 %, got {ratio}")
+
+        def apply() -> MotionReply:
+            comment = self.interp.control(action, ratio / 100.0)
+            if action is not MotionAction.OVERRIDE and not comment.startswith("OK: ignored"):
+                self._log.info("%s: %s", action.value, comment[4:])
+            return MotionReply(0, comment, "", self._motion_progress())
+
+        return self.call(apply)
+
+    def motion_progress_now(self) -> MotionProgress:
+        """The interpolator's progress (on the loop's thread: through :meth:`call`)."""
+        return self._motion_progress()
+
+    def _motion_state(self) -> tuple[object, ...]:
+        it = self.interp
+        tail = it.tail(self.law.q)
+        return (it.epoch, tuple(b.motion for b in it.queue), it.head, it.last_done, it.last_discarded, it.paused,
+                it.active and not it.holding, it.stopping, it.override, () if tail is None else tuple(tail.tolist()))
+
+    def _motion_progress(self) -> MotionProgress:
+        """The interpolator now, numbered (``seq`` grows on every change but of tm and scale)."""
+        said = self._motion_state()
+        if said != self._motion_said:
+            self._motion_said = said
+            self._motion_seq += 1
+        epoch, queued, head, done, discarded, paused, moving, stopping, override, tail = said
+        return MotionProgress(Time.now(), epoch, self.interp.running, queued, head, done, discarded, paused, moving,
+                              stopping, override * 100.0, self.interp.scale, tail, self._started, self._motion_seq)
+
+    def _publish_motion(self) -> None:
+        """``Servo/motion`` on every change, and every ``MOTION_EVERY``."""
+        now = time.monotonic()
+        if self._motion_state() != self._motion_said or now - self._motion_at >= MOTION_EVERY:
+            self._motion_at = now
+            self._motion_pub.put_message(MOTION_PROGRESS, self._motion_progress())
 
     def _publish_health(self) -> None:
         st, self._stats = self._stats, _Stats()

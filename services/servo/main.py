@@ -7,15 +7,17 @@ from __future__ import annotations
 
 import argparse
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from jara_arm.robots import DEFAULT_ROBOT, RobotModel
 from jara_arm.robots import robot as robot_model
 from jara_arm.schema.alarms import format_code
-from jara_arm.schema.codec import Reply
+from jara_arm.schema import codec
+from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.keys import ArmKeys, Service, check_arm
+from jara_arm.schema.motion import MOTION_CONTROL, MOTION_REPLY, TRAJECTORY, MotionAction, MotionReply
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.arguments import obstacle_argument
@@ -97,6 +99,36 @@ class ServoCommon:
         return refuse(ReturnCode.STATUS_ERR, f"setSoftLimitJoint refused: {why}") if why else ok()
 
 
+class ServoMotion:
+    """``Servo/trajectory`` and ``Servo/motionControl``: the planner's way into the interpolator."""
+
+    def __init__(self, loop: ServoLoop) -> None:
+        self.loop = loop
+
+    def trajectory(self, payload: bytes, encoding: Encoding) -> bytes:
+        return self._answer(payload, encoding, lambda: self.loop.submit(
+            codec.decode_message(TRAJECTORY, payload, encoding)))
+
+    def control(self, payload: bytes, encoding: Encoding) -> bytes:
+        def apply() -> MotionReply:
+            req = codec.decode_message(MOTION_CONTROL, payload, encoding)
+            try:
+                action = MotionAction(req.action)
+            except ValueError:
+                raise WireError("action", f"unknown {req.action!r}; valid: "
+                                + ", ".join(a.value for a in MotionAction)) from None
+            return self.loop.motion_control(action, req.ratio)
+        return self._answer(payload, encoding, apply)
+
+    def _answer(self, payload: bytes, encoding: Encoding, apply: Callable[[], MotionReply]) -> bytes:
+        try:
+            reply = apply()
+        except WireError as exc:
+            reply = MotionReply(int(ReturnCode.VALUE_ERR), str(exc), "",
+                                self.loop.call(self.loop.motion_progress_now))
+        return codec.encode_message(MOTION_REPLY, reply, encoding)
+
+
 def check_soft_limits(limits: Sequence[LimitValue], model: RobotModel) -> None:
     """WireError (VALUE_ERR) unless one ``lower < upper`` per axis, inside the hard limits."""
     if len(limits) != model.axis_num:
@@ -151,6 +183,13 @@ class ServoService(ArmService):
             keys = ArmKeys(loop.arm)
             common = ServoCommon(loop, MonitorLink(ctx.session, keys))
             ctx.serve(keys.servo_common(), COMMON, common, f"servo-rpc-{keys.arm}")
+            motion = ServoMotion(loop)
+            traj_key, control_key = keys.servo_trajectory, keys.servo_motion_control
+            # Control has a worker of its own: a pause never waits behind a long trajectory's decoding.
+            ctx.serve_key(traj_key, lambda _k, p, e, k=traj_key, m=motion: (k, m.trajectory(p, e)),
+                          f"servo-trajectory-{keys.arm}")
+            ctx.serve_key(control_key, lambda _k, p, e, k=control_key, m=motion: (k, m.control(p, e)),
+                          f"servo-motion-control-{keys.arm}")
             world = WorldPublisher(ctx.session, keys, servo_world(loop.model, loop.world.obstacles))
             ctx.closing(world.close)
             ctx.serve_key(keys.servo_world, world.answer, f"servo-world-{keys.arm}")
