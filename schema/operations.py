@@ -146,6 +146,9 @@ _MIDDLE = (
 #: before a corner and rejoins at most this far after it; beyond ~0.1 m a blend would replace most
 #: of a typical pick-and-place move, and the path it takes is no longer one a user can picture.
 MAX_BLEND_DISTANCE = 0.1
+#: Largest speed override ``setSpeedOverride`` takes [%]: motions as planned. Not more: a motion is
+#: planned to its speed, acceleration and jerk limits, so running it faster would break them.
+MAX_SPEED_OVERRIDE = 100.0
 
 _EXT = (
     _op(_E, "setBlendDistance", "Model-specific extension (not in the IDL): blend distance d of the motions "
@@ -157,6 +160,16 @@ _EXT = (
         inputs=[Member("distance", w.DOUBLE, "m", "0 = exact stop")]),
     _op(_E, "getBlendDistance", "Model-specific extension (not in the IDL): the blend distance set with "
         "setBlendDistance.", outputs=[Member("distance", w.DOUBLE, "m", "0 = exact stop")]),
+    _op(_E, "setSpeedOverride", "Model-specific extension (not in the IDL): speed override of every motion, "
+        f"the running one included, 0 .. {MAX_SPEED_OVERRIDE:g} %. The speed starts to change within 20 ms, "
+        "jerk-limited, by scaling time along the planned path, never leaving it: 0 holds the arm on its path (not a pause: setting "
+        "it above 0 continues), 100 (the default) runs motions as planned. It does not change "
+        "setSpeedJoint / setSpeedCartesian, which shape each motion when it is accepted; the override scales "
+        "its execution (like KUKA's $OV_PRO or UR's speed slider). Held by the servo.",
+        inputs=[Member("ratio", w.DOUBLE, "%", "0 = hold on the path, 100 = as planned")]),
+    _op(_E, "getSpeedOverride", "Model-specific extension (not in the IDL): the speed override set with "
+        "setSpeedOverride, as the servo last reported it.",
+        outputs=[Member("ratio", w.DOUBLE, "%", "0 = hold on the path, 100 = as planned")]),
 )
 
 COMMON: Mapping[str, Operation] = MappingProxyType({op.name: op for op in _COMMON})
@@ -234,6 +247,8 @@ class OP:
     # Ext (not in the IDL)
     setBlendDistance: Final = "setBlendDistance"
     getBlendDistance: Final = "getBlendDistance"
+    setSpeedOverride: Final = "setSpeedOverride"
+    getSpeedOverride: Final = "getSpeedOverride"
 
 
 _spelled = {name for name in vars(OP) if not name.startswith("_")}

@@ -1,9 +1,9 @@
-"""Blending (issue 15, part 3): ``services/planner/blend.py`` through ``MotionPlanner`` and ``Streamer``,
+"""Blending (issue 15, part 3): ``services/planner/blend.py`` through ``MotionPlanner`` and the servo's interpolator,
 switched on by ``Ext/setBlendDistance`` (``services/command/ext.py``).
 
 In-process: the blend distance setting (its checks, the snapshot every motion carries, the Ext handler's
-replies); the planner's blend of two LINs at a right angle, its fallbacks, and the streamer running
-through it with pause / resume / stop. Live (``test_live_*``, the whole system from ``jara-arm up``):
+replies); the planner's blend of two LINs at a right angle, its fallbacks, and the servo's interpolator
+running through it with pause / resume / stop (``LocalServo``). Live (``test_live_*``, the whole system from ``jara-arm up``):
 three LINs around square corners queued back to back with d = 20 mm and with d = 0, and a pause and a
 stop in the middle of a blend.
 """
@@ -29,10 +29,11 @@ from jara_arm.services.command.ext import CommandExt
 from jara_arm.services.command.middle import CommandMiddle
 from jara_arm.services.command.settings import Settings
 from jara_arm.services.planner.planning import MotionPlanner
-from jara_arm.services.planner.streamer import Streamer
+from jara_arm.services.planner.handover import Handover
 from jara_arm.services.planner.trajectory import PlannedMotion
 from jara_arm.services.runtime.rpc import answer
 
+from .local_servo import LocalServo
 from .support import motion_settings, wait_until
 from .test_middle import HOLD_WINDOW, TOL_PATH, line_deviation, rel
 from .test_middle import Arm as MiddleArm
@@ -195,25 +196,18 @@ def test_a_colliding_blend_falls_back_to_exact_stop():
     np.testing.assert_array_equal(second.q, _lin(free, 0.0, 0.2, first.end, None, 0.0).q)
 
 
-# ---------------------------------------------------------------------------------------------- streamer
+# ---------------------------------------------------------------------------------------------- the servo
 
 
-def _streamer(first: PlannedMotion, second: PlannedMotion) -> Streamer:
-    st = Streamer(IIWA.dof, DT, lambda _b: None, lambda _p: None, lambda: None)
-    assert st.submit(dataclasses.replace(first, motion=0), 0) is not None
-    assert st.last_motion() is not None and st.last_motion().motion == 1
-    assert st.submit(second, 0) is not None
-    return st
-
-
-def _send(st: Streamer, count: int | None = None) -> list[np.ndarray]:
-    out: list[np.ndarray] = []
-    while count is None or len(out) < count:
-        q = st._next_sample(0.0)
-        if q is None:
-            break
-        out.append(q.copy())
-    return out
+def _buffered(first: PlannedMotion, second: PlannedMotion) -> tuple[LocalServo, Handover]:
+    """The servo's interpolator with both motions handed over: the second as a splice into the first."""
+    servo = LocalServo(IIWA, first.q[0])
+    h = servo.handover()
+    _, epoch = h.start_point()
+    assert h.submit(dataclasses.replace(first, motion=0), epoch) is not None
+    assert h.last_motion() is not None and h.last_motion().motion == 1
+    assert h.submit(second, epoch) is not None
+    return servo, h
 
 
 def _smooth(q: np.ndarray, accel: np.ndarray) -> None:
@@ -222,51 +216,72 @@ def _smooth(q: np.ndarray, accel: np.ndarray) -> None:
     assert np.all(np.abs(np.diff(v, axis=0)) <= accel * DT * 2.0)
 
 
-def test_streamer_runs_the_blend_without_a_stop(corner):
+def test_the_servo_runs_the_blend_without_a_stop(corner):
     first, second = corner
-    st = _streamer(first, second)
-    sent = np.array(_send(st))
+    servo, h = _buffered(first, second)
+    assert h.progress().queued == (1, 2)
+    sent = np.array(servo.run())
     np.testing.assert_array_equal(sent, _blended(first, second)[1:])
-    assert st.progress().queued == (1, 2)  # both sent: in flight until the servo has consumed them
+    assert servo.interp.last_done == 2
 
 
 @pytest.mark.parametrize("action", [ControlAction.PAUSE, ControlAction.STOP])
-def test_pause_and_stop_in_the_blend_brake_to_rest(corner, action):
+def test_pause_and_stop_in_the_blend_slow_down_on_it(corner, action):
     first, second = corner
     b = second.blend
     assert b is not None
-    st = _streamer(first, second)
-    sent = _send(st, b.cut + len(b.trajectory.q) // 2)  # into the middle of the blend
-    code, comment, _ = st.control(action)
-    assert "blend" in comment or action is ControlAction.STOP, comment
-    sent += _send(st)
+    servo, h = _buffered(first, second)
+    sent = servo.run(b.cut + len(b.trajectory.q) // 2)  # into the middle of the blend
+    code, comment, _ = h.control(action)
+    assert comment.startswith("OK: pausing" if action is ControlAction.PAUSE else "OK: stopping"), comment
+    sent += servo.run()
     q = np.vstack([first.q[:1], sent])
     _smooth(q, b.limits.acceleration)
-    np.testing.assert_allclose(q[-1], q[-2], atol=1e-6)  # at rest (a jerk-limited last step: j·dt³/6)
+    np.testing.assert_allclose(q[-1], q[-2], atol=1e-6)  # at rest
+    # on the blend's own path: every command on the polyline of the blended samples
+    blended = _blended(first, second)
+    gaps = [np.abs(blended - x).sum(axis=1).argmin() for x in q[-20:]]
+    assert all(np.abs(blended[i] - x).max() < 1e-3 for i, x in zip(gaps, q[-20:]))
     if action is ControlAction.STOP:
-        progress = st.progress()
-        assert progress.lastDiscarded == 2 and 2 not in progress.queued and _send(st) == []
+        progress = h.progress()
+        assert progress.lastDiscarded == 2 and progress.queued == () and servo.run() == []
         return
-    assert st.progress().paused
-    st.control(ControlAction.RESUME)
-    rest = _send(st)
+    assert h.progress().paused
+    h.control(ControlAction.RESUME)
+    rest = servo.run()
     q = np.vstack([q, rest])
-    np.testing.assert_allclose(q[-1], second.end, atol=1e-12)  # back on the path, to its end
+    np.testing.assert_array_equal(q[-1], second.end)  # on along the blend and the path, to its end
     _smooth(q, np.maximum(b.limits.acceleration, np.abs(np.diff(second.q, 2, axis=0)).max(axis=0) / DT**2))
 
 
-def test_a_pause_before_the_cut_gives_the_exact_stop(corner):
+def test_a_pause_before_the_cut_keeps_the_blend(corner):
     first, second = corner
     b = second.blend
     assert b is not None
-    st = _streamer(first, second)
-    _send(st, b.cut - 50)
-    st.control(ControlAction.PAUSE)
-    _send(st)
-    st.control(ControlAction.RESUME)
-    rest = np.array(_send(st))
-    n = len(second.q) - 1
-    np.testing.assert_array_equal(rest[-n:], second.q[1:])  # the exact-stop motion from the corner
+    servo, h = _buffered(first, second)
+    sent = servo.run(b.cut - 50)
+    h.control(ControlAction.PAUSE)
+    sent += servo.run()
+    h.control(ControlAction.RESUME)
+    sent += servo.run()
+    q = np.array(sent)
+    np.testing.assert_array_equal(q[-1], second.end)
+    corner_q = first.q[-1]
+    assert np.abs(q - corner_q).sum(axis=1).min() > 1e-4  # it never went through the corner: it blended
+
+
+def test_a_blend_too_late_for_its_cut_is_handed_over_as_the_exact_stop(corner):
+    first, second = corner
+    b = second.blend
+    assert b is not None
+    servo = LocalServo(IIWA, first.q[0])
+    h = servo.handover()
+    _, epoch = h.start_point()
+    h.submit(dataclasses.replace(first, motion=0), epoch)
+    servo.run(b.cut + 5)  # past the cut before the next motion arrives
+    assert h.submit(second, epoch) is not None
+    rest = np.array(servo.run())
+    np.testing.assert_array_equal(rest[-(len(second.q) - 1):], second.q[1:])  # the exact-stop motion
 
 
 # ---------------------------------------------------------------------------------------------- live
@@ -362,7 +377,7 @@ def test_live_pause_in_a_blend_holds_and_resume_reaches_the_end(arm: Arm):
     arm.when_within(corners[1], 0.6 * d)  # past the cut (d before the corner), in the blend
     reply = arm.middle(OP.pause)
     arm.ok(reply)
-    assert "blend" in reply.comment, reply.comment  # the streamer braked in the blend, not on a path
+    assert reply.comment.startswith("OK: pausing"), reply.comment  # the servo slows down on the blend itself
     wait_until(lambda: arm.common(OP.getState)["state"] & StateBit.PAUSED, 2.0, what="paused bit")
     arm.servo_time.settled()  # braked to rest
     held = arm.flange_now()

@@ -1,8 +1,9 @@
-"""The early start (issue 15, part 5): a LIN / CIRC from rest streams its checked head while the rest is planned.
+"""The early start (issue 15, part 5): a LIN / CIRC from rest runs its checked head while the rest is planned.
 
 In-process: ``MotionPlanner.head`` (what it checks, when there is none, its samples are the whole motion's
-first ones bit for bit) and ``Streamer`` through every way a head can end: accepted while it streams, after
-it ran out and held, slowed down, refused, paused, stopped. Live (``test_live_*``, a servo and a planner
+first ones bit for bit) and the hand-over to the servo's interpolator (``Handover``, ``LocalServo``) through
+every way a head can end: accepted while it runs, after a late rest slowed it down, slowed down, refused,
+paused, stopped. Live (``test_live_*``, a servo and a planner
 process): the first command goes out before the reply, and a LIN refused for a box in the middle of its path
 stops within the head's reach, at rest, with no alarm.
 
@@ -20,16 +21,14 @@ import pytest
 
 from jara_arm.robots import Obstacle, robot
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import ControlAction, MotionRequest
-from jara_arm.schema.types import Time
 from jara_arm.services.planner.planning import EARLY_OPS, MotionPlanner, PlanRefused
-from jara_arm.services.planner.streamer import Streamer
+from jara_arm.services.planner.handover import Handover
 from jara_arm.services.planner.trajectory import PlannedMotion
 
 from .support import car, motion_settings
-from .test_blend import _send
+from .local_servo import LocalServo
 from .test_planner import Rig, start_rig
 
 pytestmark = pytest.mark.timeout(120)
@@ -114,33 +113,30 @@ def test_no_head_where_the_start_cannot_tell(planner):
     assert boxed.head(_lin(boxed, Q0, (0.0, LIN_Y, 0.0)), Q0) is None
 
 
-# ---------------------------------------------------------------------------------------------- the streamer
-
-
-def _status(target: np.ndarray) -> ServoStatus:
-    return ServoStatus(Time.from_seconds(time.time()), True, False, False, 0, 0, 0, 0, (0.0,) * IIWA.dof,
-                       (0.0,) * IIWA.dof, tuple(target.tolist()))
+# ---------------------------------------------------------------------------------------------- the hand-over
 
 
 @dataclasses.dataclass
 class _Started:
-    streamer: Streamer
+    servo: LocalServo
+    handover: Handover
     head: PlannedMotion
     whole: PlannedMotion
-    generation: int
+    epoch: int
     reach: float
 
 
 def _started(planner: MotionPlanner, req: MotionRequest) -> _Started:
-    """A streamer at rest at the start, the head of ``req`` started early, and the whole motion."""
-    st = Streamer(IIWA.dof, DT, lambda _b: None, lambda _p: None, lambda: _status(Q0))
-    start, generation = st.start_point()
+    """A servo at rest at the start, the head of ``req`` handed over early, and the whole motion."""
+    servo = LocalServo(IIWA, Q0)
+    h = servo.handover()
+    start, epoch = h.start_point()
     np.testing.assert_array_equal(start, Q0)
-    assert st.can_start_early()
+    assert h.can_start_early()
     head = planner.head(req, start)
-    assert head is not None and st.start_early(head.motion, generation)
-    assert not st.can_start_early()  # one at a time
-    return _Started(st, head.motion, planner.plan(req, start), generation, head.reach)
+    assert head is not None and h.start_early(head.motion, epoch)
+    assert not h.can_start_early()  # one at a time
+    return _Started(servo, h, head.motion, planner.plan(req, start), epoch, head.reach)
 
 
 def _smooth(q: np.ndarray, planner: MotionPlanner) -> None:
@@ -151,57 +147,76 @@ def _smooth(q: np.ndarray, planner: MotionPlanner) -> None:
     assert np.all(dv <= accel * DT * 2.0), (dv / (accel * DT)).max()
 
 
-def test_accepted_while_streaming_the_stream_is_the_whole_motion(planner):
+def _no_dip(q: np.ndarray, planner: MotionPlanner) -> None:
+    """The control point's speed rises to its peak and falls from it once: no slowing down and speeding
+    up again on the way (what braking on a head and starting again would show)."""
+    p = np.array([planner.kin.control_point(x[:planner.n]).translation for x in q])
+    v = np.linalg.norm(np.diff(p, axis=0), axis=1) / DT
+    peak = int(np.argmax(v))
+    rising, falling = v[:peak + 1], v[peak:]
+    tol = 1e-3 * v[peak]
+    assert np.all(np.diff(rising) >= -tol), np.diff(rising).min() / v[peak]
+    assert np.all(np.diff(falling) <= tol), np.diff(falling).max() / v[peak]
+
+
+def test_accepted_while_running_the_commands_are_the_whole_motion(planner):
     s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
-    sent = _send(s.streamer, 10)
-    motion, progress = s.streamer.confirm_early(s.whole, s.generation)
+    sent = s.servo.run(10)
+    motion, progress = s.handover.confirm_early(s.whole, s.epoch)
     assert motion == 1 and progress.queued == (1,)
-    sent += _send(s.streamer)
-    np.testing.assert_array_equal(np.array(sent), s.whole.q[1:])  # exactly what acceptance first sends
+    sent += s.servo.run()
+    q = np.vstack([Q0[None, :], sent])
+    np.testing.assert_array_equal(q[-1], s.whole.end)
+    _smooth(q, planner)
+    _no_dip(q, planner)
+    # On the motion's own samples, only slower at first (the head runs slowed down until its rest comes).
+    p = np.array([planner.kin.control_point(x[:planner.n]).translation for x in q])
+    a, b = p[0], planner.kin.control_point(s.whole.end[:planner.n]).translation
+    d = (b - a) / np.linalg.norm(b - a)
+    assert np.linalg.norm((p - a) - np.outer((p - a) @ d, d), axis=1).max() < 1e-6
 
 
-def test_a_head_that_runs_out_brakes_holds_and_goes_on_once_accepted(planner):
+def test_a_late_rest_slows_the_head_down_it_never_passes_it_and_goes_on_once_accepted(planner):
     s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
-    sent = _send(s.streamer)  # the head, then its braking: nothing more until accepted
-    assert len(sent) > len(s.head.q) and _send(s.streamer) == []
+    sent = s.servo.run(2000)  # the rest is very late: the head slows down towards its last sample
+    assert s.servo.interp.tau <= len(s.head.q) - 1
     held = sent[-1]
-    np.testing.assert_allclose(sent[-1], sent[-2], atol=1e-6)  # at rest
     assert np.linalg.norm(planner.kin.control_point(held[:planner.n]).translation
                           - planner.kin.control_point(Q0[:planner.n]).translation) <= s.reach + 1e-9
-    assert s.streamer.progress().queued == ()  # not accepted: no id yet
-    motion, _ = s.streamer.confirm_early(s.whole, s.generation)
-    sent += _send(s.streamer)
+    assert s.handover.progress().queued == ()  # not accepted: no id given to the client yet
+    motion, _ = s.handover.confirm_early(s.whole, s.epoch)
+    sent += s.servo.run()
     q = np.vstack([Q0[None, :], sent])
-    np.testing.assert_allclose(q[-1], s.whole.end, atol=1e-12)
+    np.testing.assert_array_equal(q[-1], s.whole.end)
     _smooth(q, planner)
 
 
-def test_refused_after_the_start_it_brakes_on_the_head_and_nothing_is_queued(planner):
+def test_refused_after_the_start_it_stops_on_the_head_and_nothing_is_queued(planner):
     s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
-    sent = _send(s.streamer, 20)
-    comment = s.streamer.cancel_early()
+    sent = s.servo.run(20)
+    comment = s.handover.cancel_early()
     assert "started early" in comment and "stops" in comment, comment
-    sent += _send(s.streamer)
+    sent += s.servo.run()
     q = np.vstack([Q0[None, :], sent])
     np.testing.assert_allclose(q[-1], q[-2], atol=1e-6)
     _smooth(q, planner)
     p0 = planner.kin.control_point(Q0[:planner.n]).translation
     moved = max(np.linalg.norm(planner.kin.control_point(x[:planner.n]).translation - p0) for x in q)
     assert moved <= s.reach + 1e-9, (moved, s.reach)
-    progress = s.streamer.progress()
-    assert progress.queued == () and progress.lastDiscarded == 0 and progress.running == 0
-    assert s.streamer.confirm_early(s.whole, s.generation) is None  # nothing left to accept
+    progress = s.handover.progress()
+    assert progress.queued == () and progress.running == 0
+    assert s.handover.confirm_early(s.whole, s.epoch) is None  # nothing left to accept
 
 
-def test_slowed_down_it_continues_from_the_state_sent_without_a_stop(planner):
+def test_slowed_down_it_continues_from_the_head_without_a_stop(planner):
     req = _lin(planner, Q0, (0.0, LIN_Y, 0.0))
     s = _started(planner, req)
     slower = planner.plan(dataclasses.replace(req, settings=dataclasses.replace(req.settings,
                                                                                 spdRatioCartesian=40)), Q0)
     assert slower.profile.limits != s.head.profile.limits
-    sent = _send(s.streamer, 25)
-    s.streamer.confirm_early(slower, s.generation)
-    sent += _send(s.streamer)
+    sent = s.servo.run(25)
+    assert s.handover.confirm_early(slower, s.epoch) is not None
+    sent += s.servo.run()
     q = np.vstack([Q0[None, :], sent])
     np.testing.assert_allclose(q[-1], slower.end, atol=1e-12)
     _smooth(q, planner)
@@ -211,24 +226,24 @@ def test_slowed_down_it_continues_from_the_state_sent_without_a_stop(planner):
 
 def test_a_pause_during_the_head_holds_the_accepted_motion_until_resume(planner):
     s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
-    sent = _send(s.streamer, 20)
-    assert s.streamer.control(ControlAction.PAUSE)[1].startswith("OK: pausing")
-    sent += _send(s.streamer)
-    motion, progress = s.streamer.confirm_early(s.whole, s.generation)
-    assert progress.paused and progress.queued == (motion,) and _send(s.streamer) == []
-    s.streamer.control(ControlAction.RESUME)
-    sent += _send(s.streamer)
+    sent = s.servo.run(20)
+    assert s.handover.control(ControlAction.PAUSE)[1].startswith("OK: pausing")
+    sent += s.servo.run()
+    motion, progress = s.handover.confirm_early(s.whole, s.epoch)
+    assert progress.paused and progress.queued == (motion,) and s.servo.run() == []
+    s.handover.control(ControlAction.RESUME)
+    sent += s.servo.run()
     q = np.vstack([Q0[None, :], sent])
-    np.testing.assert_allclose(q[-1], s.whole.end, atol=1e-12)
+    np.testing.assert_array_equal(q[-1], s.whole.end)
     _smooth(q, planner)
 
 
 def test_a_stop_during_the_head_discards_it_and_the_motion_is_planned_again(planner):
     s = _started(planner, _lin(planner, Q0, (0.0, LIN_Y, 0.0)))
-    _send(s.streamer, 20)
-    s.streamer.control(ControlAction.STOP)
-    assert _send(s.streamer)  # the braking
-    assert s.streamer.confirm_early(s.whole, s.generation) is None  # the generation moved: plan again
+    s.servo.run(20)
+    s.handover.control(ControlAction.STOP)
+    assert s.servo.run()  # slowing down to rest
+    assert s.handover.confirm_early(s.whole, s.epoch) is None  # the epoch moved: plan again
 
 
 # ---------------------------------------------------------------------------------------------- live
@@ -287,23 +302,23 @@ def test_live_a_box_mid_path_refuses_the_lin_and_it_stops_within_the_head(boxed_
     assert np.linalg.norm(rig.tcp(rig.pos())[:3, 3] - p0) < REACH
 
 
-@pytest.mark.parametrize("braking", [False, True], ids=["held", "braking"])
-def test_after_a_run_out_the_next_motion_still_blends(planner, braking):
-    """A head that ran out, accepted once it holds, or while it still brakes (the reply goes out then and the
-    next request follows at once): the next LIN's blend is planned against, and cuts into, what is streamed."""
+@pytest.mark.parametrize("late", [False, True], ids=["in-time", "late"])
+def test_after_an_early_start_the_next_motion_still_blends(planner, late):
+    """A head accepted while it runs, or once it has slowed down for a late rest: the next LIN's blend is
+    planned against, and cuts into, what the servo buffers."""
     s = _started(planner, _lin(planner, Q0, (0.0, 0.15, 0.0)))
-    sent = _send(s.streamer, len(s.head.q) + 20 if braking else None)  # 20 samples into the braking, or all
-    s.streamer.confirm_early(s.whole, s.generation)
-    start, generation = s.streamer.start_point()
+    sent = s.servo.run(500 if late else 10)
+    s.handover.confirm_early(s.whole, s.epoch)
+    start, epoch = s.handover.start_point()
     np.testing.assert_array_equal(start, s.whole.end)
-    previous = s.streamer.last_motion()
+    previous = s.handover.last_motion()
     assert previous is not None and previous.motion == 1
     nxt = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(_pose(planner, s.whole.end, (0.15, 0.0, 0.0)))},
                         motion_settings(IIWA, blendDistance=0.02))
     second = planner.plan(nxt, start, previous)
     assert second.blend is not None and second.blend.previous == 1
-    assert s.streamer.submit(second, generation) is not None
-    sent += _send(s.streamer)
+    assert s.handover.submit(second, epoch) is not None
+    sent += s.servo.run()
     q = np.vstack([Q0[None, :], sent])
     np.testing.assert_allclose(q[-1], second.end, atol=1e-12)
     _smooth(q, planner)

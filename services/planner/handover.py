@@ -59,7 +59,8 @@ log = logging.getLogger(__name__)
 STATUS_TIMEOUT = 0.5
 PROGRESS_PERIOD = 0.1  # [s] Planner/progress at least this often
 
-#: ``(trajectory) -> reply``, ``(control) -> reply``; None when the servo did not answer.
+#: ``(trajectory) -> reply``, ``(control) -> reply``; None when the servo did not answer. The
+#: ``poll_motion`` of :class:`Handover` gives the newest ``Servo/motion`` since its last call, or None.
 AskTrajectory = Callable[[Trajectory], MotionReply | None]
 AskControl = Callable[[MotionControl], MotionReply | None]
 
@@ -112,6 +113,7 @@ class Handover:
 
     def start_point(self) -> tuple[Joints, int]:
         """(start joints of the next motion, the servo's epoch); raises PlanRefused if there is none."""
+        self._refresh()
         newest = self._poll_status()
         with self._lock:
             now = time.time()
@@ -180,6 +182,7 @@ class Handover:
 
     def can_start_early(self) -> bool:
         """Nothing buffered, paused or stopping: a motion planned now may start before it is accepted."""
+        self._refresh()
         with self._lock:
             m = self._motion
             return (self._head is None and m is not None and not m.queued and not m.paused and not m.stopping
@@ -208,7 +211,8 @@ class Handover:
         head; plan it again."""
         with self._lock:
             h, self._head = self._head, None
-        assert h is not None, "confirm_early without start_early"
+        if h is None:  # cancelled already
+            return None
         head = h.planned
         k = len(head.q) - 1
         same = (motion.profile.limits == head.profile.limits and len(motion.q) >= len(head.q)
@@ -244,6 +248,7 @@ class Handover:
 
     def progress(self) -> PlannerProgress:
         """The queue and the pause now."""
+        self._refresh()
         with self._lock:
             return self._progress(time.time())
 
@@ -261,6 +266,12 @@ class Handover:
 
     # ------------------------------------------------------------------ the relay
 
+    def _refresh(self) -> None:
+        """Take the newest ``Servo/motion`` received, if any (the relay does it too, every WATCHER_POLL)."""
+        m = self._poll_motion()
+        if m is not None:
+            self._adopt(m)
+
     def _adopt(self, m: MotionProgress) -> bool:
         """Keep ``m`` if it is the servo's newest; True if it was."""
         with self._lock:
@@ -277,8 +288,7 @@ class Handover:
         while not self._stop_event.is_set():
             self._pulse.beat()
             try:
-                while (m := self._poll_motion()) is not None:
-                    self._adopt(m)
+                self._refresh()
                 now = time.time()
                 with self._lock:
                     progress = self._progress(now)

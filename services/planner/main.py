@@ -134,12 +134,14 @@ class PlannerService:
             return None
 
     def _poll_motion(self) -> MotionProgress | None:
+        """The newest ``Servo/motion`` received since the last poll, or None."""
+        newest = None
         while (sample := self._motion_sub.try_recv()) is not None:
             try:
-                return decode_sample(MOTION_PROGRESS, sample)
+                newest = decode_sample(MOTION_PROGRESS, sample)
             except WireError as exc:
                 log.warning("ignored a malformed Servo/motion: %s", exc)
-        return None
+        return newest
 
     def _put_progress(self, progress: PlannerProgress) -> None:
         self._progress_pub.put_message(PLANNER_PROGRESS, progress)
