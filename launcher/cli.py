@@ -244,7 +244,7 @@ class _Parsers:
             description="Publish the messages of an MCAP recording on their keys at their recorded pace (divided "
             "by --speed), each in its key's encoding, for echo, plot, view or any subscriber. Refuses while "
             "a recorded arm is alive on the network. Never replays what the services subscribe to "
-            "(Servo/posCmd, Servo/posBlock, estop, Monitor/report); call traces go out as publications, "
+            "(Servo/posCmd, estop, Monitor/report); call traces go out as publications, "
             "never as queries.")
         self.replay.add_argument("file", metavar="FILE.mcap", help="a recording of jara-arm record")
         self.replay.add_argument("--speed", type=positive_float, default=1.0, metavar="X",

@@ -2,8 +2,9 @@
 
 Servo on, speeds, PTP, LIN, CIRC, pause and resume, home, servo off. Each step
 prints the operation, its return code and comment, and what was measured
-afterwards (feedback, not what was asked). Exits 1 if a step that should
-succeed did not.
+afterwards (feedback, not what was asked): every motion's arrival is checked
+against its target, ``[FAILED]`` with the distance left when it fell short.
+Exits 1 if a step that should succeed did not.
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ from .client import ArmClient
 SPEED_JOINT = 40  # [%]
 SPEED_CARTESIAN = 60  # [%] of 0.25 m/s by default
 STEP = 0.08  # [m] size of the Cartesian moves
+#: A motion counts as arrived with its feedback this close to its target [rad or m]: the simulated
+#: drives settle within 1e-4 of it; a motion cut short misses it by far more.
+ARRIVED = 1e-3
 
 
 def rel(dx: float = 0.0, dy: float = 0.0, dz: float = 0.0) -> CarPosWithElbow:
@@ -63,9 +67,11 @@ class Demo:
     def joints(self) -> np.ndarray:
         return np.asarray(self.client.common(OP.getFeedbackPosJoint)["pos"])
 
-    def move(self, label: str, name: str, args: Mapping[str, Any] | None = None,
-             cartesian: bool = True) -> None:
-        p0 = self.position() if cartesian else None
+    def move(self, label: str, name: str, args: Mapping[str, Any] | None = None, *,
+             joints: np.ndarray | None = None, delta: np.ndarray | None = None) -> None:
+        """One motion: accepted, then arrived where it should: at ``joints`` [rad or m], or with the
+        control point moved by ``delta`` [m]."""
+        p0 = self.position() if delta is not None else None
         t0 = time.monotonic()
         if self.step(label, lambda: self.client.middle(name, args)).id != ReturnCode.OK:
             return
@@ -77,12 +83,19 @@ class Demo:
             self.check(f"{label}: arrived", False, f"state 0x{state:02x}; active alarms: "
                        + ("; ".join(f"0x{a.code:02x} {a.type.value} {a.description}" for a in alarms) or "none"))
             return
-        if cartesian:
+        if delta is not None:
+            assert p0 is not None
             d = self.position() - p0
-            self.say(f"{'':9}arrived after {dt:.2f} s; the control point moved "
-                     f"({d[0]:+.4f}, {d[1]:+.4f}, {d[2]:+.4f}) m")
-        else:
-            self.say(f"{'':9}arrived after {dt:.2f} s; joints now {np.round(self.joints(), 4).tolist()}")
+            left = float(np.linalg.norm(d - delta))
+            self.check(f"{label}: arrived", left <= ARRIVED,
+                       f"after {dt:.2f} s the control point moved ({d[0]:+.4f}, {d[1]:+.4f}, {d[2]:+.4f}) m"
+                       + ("" if left <= ARRIVED else f"; {left:.4f} m short of its target"))
+        elif joints is not None:
+            q = self.joints()[:len(joints)]
+            left = float(np.max(np.abs(q - joints)))
+            self.check(f"{label}: arrived", left <= ARRIVED,
+                       f"after {dt:.2f} s joints {np.round(q, 4).tolist()}"
+                       + ("" if left <= ARRIVED else f"; {left:.4f} rad / m short of the target"))
 
 
 def run_demo(client: ArmClient, out: TextIO) -> int:
@@ -101,17 +114,21 @@ def run_demo(client: ArmClient, out: TextIO) -> int:
     d.step(f"setSpeedJoint({SPEED_JOINT} %)", lambda: client.middle(OP.setSpeedJoint, {"spdRatio": SPEED_JOINT}))
     d.step(f"setSpeedCartesian({SPEED_CARTESIAN} %)",
            lambda: client.middle(OP.setSpeedCartesian, {"spdRatio": SPEED_CARTESIAN}))
-    d.move("goHome", OP.goHome, cartesian=False)
+    home = np.asarray(client.middle(OP.getHome)["jointPoint"])
+    d.move("goHome", OP.goHome, joints=home)
     delta = [0.0] * info.axisNum
     delta[0] = 0.3 if model is None or not model.prismatic[0] else 0.05
-    d.move(f"movePTPJointRel(J1 {delta[0]:+})", OP.movePTPJointRel, {"jointPoints": delta}, cartesian=False)
+    d.move(f"movePTPJointRel(J1 {delta[0]:+})", OP.movePTPJointRel, {"jointPoints": delta},
+           joints=d.joints()[:info.axisNum] + delta)
     cartesian_lin = model is None or not (model.family is Family.CARTESIAN and model.axis_num < 3)
     if cartesian_lin:
-        d.move(f"moveLinearCartesianRel(z {-STEP:+})", OP.moveLinearCartesianRel, {"carPoint": rel(dz=-STEP)})
+        d.move(f"moveLinearCartesianRel(z {-STEP:+})", OP.moveLinearCartesianRel, {"carPoint": rel(dz=-STEP)},
+               delta=np.array([0.0, 0.0, -STEP]))
     if model is None or model.axis_num >= 2:
         d.move(f"moveCircularCartesianRel(via {STEP/2:+},{STEP/2:+}; to {STEP:+},0)",
                OP.moveCircularCartesianRel,
-               {"carPointR": rel(dx=STEP / 2, dy=STEP / 2), "carPointT": rel(dx=STEP)})
+               {"carPointR": rel(dx=STEP / 2, dy=STEP / 2), "carPointT": rel(dx=STEP)},
+               delta=np.array([STEP, 0.0, 0.0]))
     if cartesian_lin:
         p0 = d.position()
         d.step(f"moveLinearCartesianRel(x {-2 * STEP:+})",
@@ -127,9 +144,10 @@ def run_demo(client: ArmClient, out: TextIO) -> int:
         d.step("resume", lambda: client.middle(OP.resume))
         client.wait_idle()
         moved = d.position()[0] - p0[0]
-        d.check("resumed and arrived", abs(moved + 2 * STEP) < 1e-3,
-                f"moved {moved:+.4f} m in x of {-2 * STEP:+} m")
-    d.move("goHome", OP.goHome, cartesian=False)
+        d.check("resumed and arrived", abs(moved + 2 * STEP) < ARRIVED,
+                f"moved {moved:+.4f} m in x of {-2 * STEP:+} m"
+                + ("" if abs(moved + 2 * STEP) < ARRIVED else f"; {abs(moved + 2 * STEP):.4f} m short"))
+    d.move("goHome", OP.goHome, joints=home)
     d.step("servoOFF", lambda: client.common(OP.servoOFF))
     d.say("demo done" if not d.failed else f"demo: {len(d.failed)} step(s) failed: {', '.join(d.failed)}")
     return len(d.failed)

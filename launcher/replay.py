@@ -7,7 +7,7 @@ key's declared encoding (JSON or MessagePack, ``schema/keys.py``) and labelled
 with it.
 
 Never replayed: what the services subscribe to (the keys of kind ``subscriber``
-in the key table: ``Servo/posCmd``, ``Servo/posBlock``, ``estop``,
+in the key table: ``Servo/posCmd``, ``estop``,
 ``Monitor/report``), which would move or stop a real arm; keys outside the key
 table. The call traces (``trace/...``) go out as the publications they are,
 never as queries. Replay refuses to start while an arm of the recording is

@@ -39,7 +39,8 @@ class Role(enum.StrEnum):
     #: low-level ``Servo/Common`` operations, ``Monitor/Common``, the e-stop; watches everything.
     OPERATOR = "operator"
     #: An operator that may also stream its own position commands (``Servo/posCmd``, SyncFIFO),
-    #: as a low-level client of WIRE.md does. Never the planner's ``Servo/posBlock``.
+    #: as a low-level client of WIRE.md does. Never ``Servo/trajectory`` or ``Servo/motionControl``:
+    #: the planner alone hands motions to the servo.
     LOW_LEVEL = "low-level"
     #: Watches everything and may stop the arm (anyone who can see the arm may stop it):
     #: getters only, subscriptions, liveliness, the e-stop.

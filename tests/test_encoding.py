@@ -102,11 +102,11 @@ ARM = ArmKeys("enc-test")
 WATCHED = [ARM.state, ARM.alarm, ARM.log(Service.SERVO), ARM.log(), ARM.monitor_alarms, ARM.command_settings,
            ARM.servo_health, ARM.servo_world]
 #: The 1 kHz streams and the other high-rate or internal ones: MessagePack.
-FAST = [ARM.pos_feedback, ARM.pos_cmd, ARM.pos_block, ARM.servo_status, ARM.heartbeat(Service.COMMAND),
+FAST = [ARM.pos_feedback, ARM.pos_cmd, ARM.pos_target, ARM.servo_status, ARM.servo_motion, ARM.heartbeat(Service.COMMAND),
         ARM.planner_progress, ARM.monitor_report, ARM.alarm_copy, ARM.planner_path]
 QUERYABLES = [ARM.interface(Interface.COMMON, OP.getState), ARM.interface(Interface.MIDDLE, OP.setSpeedJoint),
               ARM.servo_common(OP.servoON), ARM.monitor_common(OP.clearAlarms), ARM.planner_plan,
-              ARM.planner_control]
+              ARM.planner_control, ARM.servo_trajectory, ARM.servo_motion_control]
 
 
 def test_every_key_declares_its_encoding():

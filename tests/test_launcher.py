@@ -18,8 +18,8 @@ import pytest
 from jara_arm.launcher import cli, supervisor, up
 from jara_arm.launcher.router import RouterSettings, local_endpoint
 from jara_arm.launcher.services import NAMES
-from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.keys import Service
+from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode
+from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import LimitValue
 
 from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
@@ -279,6 +279,30 @@ def test_up_with_the_demo_runs_it_clean_and_raises_no_alarm() -> None:
         assert "FAILED" not in out, out
         assert "alarm 0x" not in out and "raised" not in out, out
         assert "was silent for" not in out, out  # no stall of any service, either
+
+
+@pytest.mark.timeout(120)
+def test_a_motion_cut_short_by_an_alarm_is_a_warning_and_the_demo_says_failed() -> None:
+    """An accepted motion that an e-stop cuts short: a 0x420 WARNING names it, and the demo, which checks
+    every arrival, prints FAILED with what is left and exits non-zero."""
+    with launcher() as (proc, port):
+        demo = Proc([*LAUNCHER, "demo", "--connect", endpoint(port)])
+        try:
+            demo.wait_for_line("movePTPJointRel(J1 +0.3)", timeout=60)  # accepted: under way for ~1 s
+            with client_session(port) as session:
+                session.put(ArmKeys("arm0").estop, b"")
+                client = Client(session)
+                alarms = wait_until(lambda: [a for a in client.common("getActiveAlarm")["alarms"]
+                                             if a.code == AlarmCode.MOTION_NOT_COMPLETED], 5.0,
+                                    what="the 0x420 warning")
+            assert alarms[0].type is AlarmType.WARNING, alarms
+            assert "discarded before their end: alarm 0x01" in alarms[0].description, alarms
+            assert demo.popen.wait(60) != 0, demo.output
+        finally:
+            demo.stop()
+        out = demo.output
+        assert re.search(r"\[FAILED\] movePTPJointRel\(J1 \+0\.3\): arrived", out), out
+        assert "0x420 " in out and "discarded before their end" in out, out
 
 
 @pytest.mark.timeout(120)

@@ -417,7 +417,7 @@ def test_live_the_recording_holds_every_channel_with_its_schema_the_1khz_feedbac
         summary = make_reader(f).get_summary()
     assert summary is not None
     topics = {c.topic: c for c in summary.channels.values()}
-    for key in (k.pos_feedback, k.pos_block, k.servo_status, k.state, k.alarm, k.log(Service.SERVO),
+    for key in (k.pos_feedback, k.pos_target, k.servo_status, k.state, k.alarm, k.log(Service.SERVO),
                 k.planner_progress, k.monitor_alarms, k.estop, k.trace(Interface.COMMON.value, OP.servoON),
                 k.trace(Interface.MIDDLE.value, OP.movePTPJointAbs),
                 k.trace(Interface.MIDDLE.value, OP.moveLinearCartesianRel),
@@ -465,12 +465,12 @@ def test_live_a_replay_into_a_router_without_arms_gives_subscribers_the_same_seq
             for s in iter(every.try_recv, None):  # one subscriber: the order the replay published in
                 key = str(s.key_expr)
                 feedback += key == k.pos_feedback
-                commands += key in (k.pos_block, k.pos_cmd, k.estop)
+                commands += key in (k.pos_cmd, k.estop)
                 if any(w_.intersects(s.key_expr) for w_ in wanted):
                     got.append((key, codec.loads(s.payload.to_bytes(), Encoding.of(s.encoding))))
             assert got == expected
             assert feedback == len(list(read_messages(path, [k.pos_feedback])))
-            assert commands == 0  # the planner's commands and the e-stop are never replayed
+            assert commands == 0  # position commands and the e-stop are never replayed
     finally:
         router.stop(signal.SIGINT)
 

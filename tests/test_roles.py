@@ -55,9 +55,11 @@ def test_no_client_may_stand_in_for_a_service(role: Role) -> None:
         assert message not in rights, f"{role}: {message}"
     puts = set(rights["put"])
     assert KEYS.estop in puts  # anyone who can see the arm may stop it
-    for internal in (KEYS.pos_block, KEYS.heartbeat(Service.SERVO), KEYS.heartbeat(), KEYS.monitor_report,
+    for internal in (KEYS.servo_motion, KEYS.heartbeat(Service.SERVO), KEYS.heartbeat(), KEYS.monitor_report,
                      KEYS.command_settings, KEYS.planner_progress):
         assert internal not in puts
+    for internal in (KEYS.servo_trajectory, KEYS.servo_motion_control, KEYS.planner_plan, KEYS.planner_control):
+        assert internal not in rights["query"]  # only the services hand motions to the servo
     assert (KEYS.pos_cmd in puts) == (role is Role.LOW_LEVEL)
 
 

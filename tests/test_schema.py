@@ -220,16 +220,6 @@ def test_fast_feedback_encoder_equals_the_generic_one():
     assert messages.timed_joint_pos_payload(t_ns, pos) == generic
 
 
-def test_position_block_payload_decodes_as_the_generic_message():
-    rows = [[0.1, -2.0, 3.5e-9], [0.2, -1.9, 0.0]]
-    block = codec.decode_message(messages.POSITION_BLOCK, messages.position_block_payload(1_795_331_203.25, rows))
-    assert block.tm == Time(1_795_331_203, 250_000_000)
-    assert [list(r) for r in block.pos] == rows
-    generic = codec.encode_message(messages.POSITION_BLOCK, messages.PositionBlock(block.tm, tuple(map(tuple, rows))))
-    assert codec.decode_message(messages.POSITION_BLOCK, generic) == block
-
-
-
 def test_fast_status_encoder_equals_the_generic_one():
     st = messages.ServoStatus(Time(1_795_331_203, 250_143_514), True, False, True, 3, 10_001, 10_004, 2,
                               (0.1, -0.2), (1.5, -30.25), (0.0, 1e-9), (LimitValue(2.9, -2.9), LimitValue(1.0, -1.5)),
@@ -237,45 +227,14 @@ def test_fast_status_encoder_equals_the_generic_one():
     assert messages.servo_status_payload(st) == codec.encode_message(messages.SERVO_STATUS, st)
 
 
-def test_fast_block_decoder_reads_what_the_generic_one_reads():
-    rng = np.random.default_rng(7)
-    for _ in range(50):
-        rows = rng.uniform(-4.0, 4.0, (int(rng.integers(1, 9)), 7)).tolist()
-        payload = messages.position_block_payload(1_795_331_203.25, rows)
-        generic = codec.decode_message(messages.POSITION_BLOCK, payload)
-        assert messages.position_block_rows(payload, 7).tolist() == [list(r) for r in generic.pos]
-
-
-@pytest.mark.parametrize("payload, field", [
-    (b"\xc1", "payload"),
-    (msgpack.packb([1, 2]), ""),
-    (msgpack.packb({"pos": [[0.0] * 7]}), "tm"),
-    (msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": [[0.0] * 6 + ["x"]]}), "pos"),
-    (msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": [[0.0] * 6 + [True]]}), "pos"),
-    (msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": [[0.0] * 6 + [float("nan")]]}), "pos"),
-    (msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": [0.0] * 7}), "pos"),
-])
-def test_fast_block_decoder_refuses_what_the_generic_one_refuses(payload, field):
-    with pytest.raises(WireError) as err:
-        messages.position_block_rows(payload, 7)
-    assert err.value.field == field
-    with pytest.raises(WireError):
-        codec.decode_message(messages.POSITION_BLOCK, payload)
-
-
-@pytest.mark.parametrize("rows", [[[0.0] * 6], [[0.0] * 7, [0.0] * 6], [[]]])
-def test_fast_block_decoder_refuses_rows_of_another_arm(rows):
-    with pytest.raises(WireError, match="7 axes") as err:
-        messages.position_block_rows(msgpack.packb({"tm": {"sec": 1, "nsec": 0}, "pos": rows}), 7)
-    assert err.value.field == "pos"
-
 def test_keys():
     k = keys.ArmKeys("arm-1_B")
     assert k.interface(Interface.MIDDLE, "movePTPJointAbs") == "JARA_ARM/arm-1_B/Middle/movePTPJointAbs"
     assert k.interface(Interface.COMMON) == "JARA_ARM/arm-1_B/Common/*"
     assert k.servo_common("getState") == "JARA_ARM/arm-1_B/Servo/Common/getState"
     assert k.pos_cmd == "JARA_ARM/arm-1_B/Servo/posCmd"
-    assert k.pos_block == "JARA_ARM/arm-1_B/Servo/posBlock"
+    assert k.pos_target == "JARA_ARM/arm-1_B/Servo/posTarget"
+    assert k.servo_trajectory == "JARA_ARM/arm-1_B/Servo/trajectory"
     assert k.pos_feedback == "JARA_ARM/arm-1_B/Servo/posFeedback"
     assert k.state == "JARA_ARM/arm-1_B/state" and k.alarm == "JARA_ARM/arm-1_B/alarm"
     assert k.estop == "JARA_ARM/arm-1_B/estop"
