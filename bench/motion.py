@@ -4,19 +4,23 @@ Measures, and prints one line each:
 
 * reply -> motion: from the ``Planner/plan`` reply to the first feedback sample
   that has left the start (PTP from rest, 50 %), median / max over ``--n`` moves;
-* request -> first position command (the first ``PositionBlock`` seen on the
-  wire) and request -> reply for a 0.5 m LIN and a half-circle CIRC (radius
-  0.15 m) at 0.25 m/s, from rest, ``--rounds`` times each (median, max): with
-  the planner's early start the first command follows the head (its first
-  knot interval), the reply the whole; ``--early-start-ms 0`` measures
-  acceptance first. Then the planner's own planning time (its log), and the same two
+* request -> first position command (the first command the servo followed,
+  ``Servo/posTarget``, by the time its cycle stands for) and request -> reply
+  for a 0.5 m LIN and a half-circle CIRC (radius 0.15 m) at 0.25 m/s, from
+  rest, ``--rounds`` times each (median, max): with the planner's early start
+  the first command follows the head (its first knot interval), the reply the
+  whole; ``--early-start-ms 0`` measures acceptance first. For each of them,
+  whether the control point's commanded speed dipped on the way (fell below
+  half the speed reached, then rose again: what braking on an early start's
+  head and starting again shows), and how often the servo held a head at its
+  last sample waiting for its rest (its log); Then the planner's own planning time (its log), and the same two
   motions planned in this process (``MotionPlanner.plan``, median wall and
   least CPU time of 9: the planning cost without the services and the
   machine's other load); ``bench/plan_stages.py`` splits that cost by stage;
 * deviation of those moves from the ideal line / circle: planned (FK of the
   position commands) and executed (FK of the feedback);
-* pause latency: from the ``pause`` reply to the servo consuming the first
-  braking command;
+* pause latency: from the ``pause`` request (and from its reply) to the first
+  command the servo followed that is slower than the one before;
 * PTP duration vs the time-optimal bound: Ruckig's synchronised time-optimal
   duration for the same per-axis speed, acceleration and jerk limits;
 * the collision check's cost per motion (``services/planner/collision.py``,
@@ -24,7 +28,7 @@ Measures, and prints one line each:
   LIN and a half-circle CIRC (radius 0.15 m) on iiwa and panda, median of 9,
   with one box in the world, clear of the paths.
 
-    python bench/motion.py [--n 10] [--rounds 5] [--lead-ms 12] [--early-start-ms 0]
+    python bench/motion.py [--n 10] [--rounds 5] [--early-start-ms 0]
 """
 
 from __future__ import annotations
@@ -84,10 +88,9 @@ class Bench:
         self.keys = ArmKeys()
         self.kin = Kinematics(MODEL)
         self.lock = threading.Lock()
-        self.cmds: list[tuple[float, bytes]] = []
         self.fbs: list[tuple[float, bytes]] = []
         self.statuses: list[bytes] = []
-        session.declare_subscriber(self.keys.pos_block, lambda s: self._add(self.cmds, s))
+        self.cmds = session.declare_subscriber(self.keys.pos_target, zenoh.handlers.FifoChannel(1 << 18))
         session.declare_subscriber(self.keys.pos_feedback, lambda s: self._add(self.fbs, s))
         session.declare_subscriber(self.keys.servo_status, lambda s: self._add(self.statuses, s))
         self.progress = session.declare_subscriber(self.keys.planner_progress, zenoh.handlers.RingChannel(1))
@@ -98,12 +101,12 @@ class Bench:
 
     def drain(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[messages.ServoStatus]]:
         with self.lock:
-            cmds, fbs, sts = self.cmds, self.fbs, self.statuses
-            self.cmds, self.fbs, self.statuses = [], [], []
+            fbs, sts = self.fbs, self.statuses
+            self.fbs, self.statuses = [], []
         dec = lambda b: codec.decode_message(w.TIMED_JOINT_POS, b)  # noqa: E731
-        blocks = [(t, codec.decode_message(messages.POSITION_BLOCK, b).pos) for t, b in cmds]
+        cmds = [dec(s.payload.to_bytes()) for s in iter(self.cmds.try_recv, None)]
         fb = [dec(b) for _, b in fbs]
-        return (np.array([t for t, rows in blocks for _ in rows]), np.array([r for _, rows in blocks for r in rows]),
+        return (np.array([c.tm.to_seconds() for c in cmds]), np.array([c.pos for c in cmds]).reshape(-1, 7),
                 np.array([f.tm.to_seconds() for f in fb]), np.array([f.pos for f in fb]),
                 [codec.decode_message(messages.SERVO_STATUS, b) for _, b in sts])
 
@@ -155,6 +158,15 @@ def car(p, R) -> dict:
     return w.CAR_POS_WITH_ELBOW.encode(CarPosWithElbow(T[:3], 0.0, 0))
 
 
+def dipped(p: np.ndarray) -> bool:
+    """Whether the speed along points ``p`` (one per cycle) fell below half the speed reached so far and
+    then rose again by a quarter of it: a stop-and-go on the way, not the end of the motion."""
+    v = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    reached = np.maximum.accumulate(v)
+    low = np.flatnonzero((v < 0.5 * reached) & (reached > 0))
+    return any(v[i:].max() > v[i] + 0.25 * reached[i] for i in low)
+
+
 def line_dev(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     d = b - a
     u = np.clip((p - a) @ d / (d @ d), 0, 1)
@@ -201,7 +213,7 @@ def cartesian(b: Bench, rounds: int) -> list[str]:
         radial = np.linalg.norm(p[:, :2] - c[:2], axis=1) - r
         return float(np.hypot(radial, p[:, 2] - c[2]).max())
 
-    measured: dict[str, list[tuple[float, float, float]]] = {"LIN": [], "CIRC": []}  # [ms], [ms], [m]
+    measured: dict[str, list[tuple[float, float, float, float, float]]] = {"LIN": [], "CIRC": []}
     durations = {}
     for _ in range(rounds):
         m, _ = b.plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)})
@@ -216,13 +228,15 @@ def cartesian(b: Bench, rounds: int) -> list[str]:
             b.wait_done(m)
             tc, cmd, _, fb, _ = b.drain()
             durations[name] = reply.duration
-            measured[name].append((1e3 * (t_reply - t0), 1e3 * (tc[0] - t0), dev(b.tcp(cmd)), dev(b.tcp(fb))))
+            measured[name].append((1e3 * (t_reply - t0), 1e3 * (tc[0] - t0), dev(b.tcp(cmd)), dev(b.tcp(fb)),
+                                   float(dipped(b.tcp(cmd)))))
     for name, what in (("LIN", "LIN 0.5 m"), ("CIRC", "CIRC half circle r = 0.15 m")):
-        reply_ms, first_ms, planned, executed = np.array(measured[name]).T
+        reply_ms, first_ms, planned, executed, dips = np.array(measured[name]).T
         out.append(f"{what} at 0.25 m/s ({durations[name]:.2f} s), {rounds} times: request -> reply median "
                    f"{np.median(reply_ms):.1f} ms (max {reply_ms.max():.1f}), request -> first command median "
-                   f"{np.median(first_ms):.1f} ms (max {first_ms.max():.1f}); deviation planned "
-                   f"{planned.max() * 1e6:.3f} µm, executed {executed.max() * 1e6:.1f} µm")
+                   f"{np.median(first_ms):.1f} ms (min {first_ms.min():.1f}, max {first_ms.max():.1f}); deviation "
+                   f"planned {planned.max() * 1e6:.3f} µm, executed {executed.max() * 1e6:.1f} µm; speed dips "
+                   f"{int(dips.sum())} of {rounds}")
     out.append(in_process(b, q0, a, lin_args, circ_args))
     return out
 
@@ -282,30 +296,32 @@ def collision_cost() -> list[str]:
 
 
 def pause_latency(b: Bench, n: int) -> str:
-    lat = []
+    """From the pause request (and its reply) to the first followed command slower than the one before."""
+    from_request, from_reply = [], []
     for k in range(n):
         sign = 1 if k % 2 == 0 else -1
         m, _ = b.plan(OP.movePTPJointRel, {"jointPoints": [sign * 0.6] + [0.0] * 6}, spdRatioJoint=30)
-        time.sleep(0.4)
+        time.sleep(0.4)  # at its cruising speed
         b.drain()
+        t_request = time.time()
         b.control(ControlAction.PAUSE)
         t_reply = time.time()
         time.sleep(0.4)
         b.control(ControlAction.RESUME)
         b.wait_done(m)
-        tc, cmd, _, _, sts = b.drain()
-        first = int(np.argmax(tc > t_reply))
-        index = {tuple(q): i for i, q in enumerate(cmd)}
-        seen = [(s.tm.to_seconds(), index[tuple(s.target)]) for s in sts if tuple(s.target) in index]
-        after = [(t, i) for t, i in seen if i >= first]
-        if after:  # none if the motion was aborted meanwhile (the servo ran dry): not a pause sample
-            t_seen, i_seen = after[0]
-            lat.append(t_seen - (i_seen - first) * DT - t_reply)
-    lat_ms = np.array(lat) * 1e3
-    if not len(lat_ms):
-        return "pause latency: no measurement (every motion was aborted)"
-    return (f"pause reply -> servo executes the first braking command: median {np.median(lat_ms):.1f} ms, "
-            f"max {lat_ms.max():.1f} ms over {len(lat_ms)} pauses")
+        tc, cmd, _, _, _ = b.drain()
+        v = np.abs(np.diff(cmd[:, 0]))
+        slower = np.flatnonzero((tc[1:] > t_request - DT) & (np.r_[np.inf, v[:-1]] - v > 1e-12))
+        if len(slower):
+            t = tc[1 + slower[0]]
+            from_request.append(t - t_request)
+            from_reply.append(t - t_reply)
+    req_ms, rep_ms = np.array(from_request) * 1e3, np.array(from_reply) * 1e3
+    if not len(req_ms):
+        return "pause latency: no measurement"
+    return (f"pause request -> first slower command followed by the servo: median {np.median(req_ms):.1f} ms, "
+            f"max {req_ms.max():.1f} ms; reply -> it: median {np.median(rep_ms):.1f} ms, max {rep_ms.max():.1f} ms "
+            f"over {len(req_ms)} pauses")
 
 
 def ptp_optimality(b: Bench) -> str:
@@ -335,7 +351,6 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=10, help="repetitions of the latency measurements")
     ap.add_argument("--rounds", type=int, default=5, help="repetitions of the LIN and the CIRC")
-    ap.add_argument("--lead-ms", type=float, default=None, help="planner lead (default: its own)")
     ap.add_argument("--early-start-ms", type=float, default=None,
                     help="the planner's early start (default: its own; 0: acceptance first)")
     args = ap.parse_args()
@@ -343,7 +358,7 @@ def main() -> int:
         print(line)
     sp, pp = free_port(), free_port()
     servo = spawn(Service.SERVO, sp)
-    extra = ["--connect", f"tcp/127.0.0.1:{sp}"] + (["--lead-ms", str(args.lead_ms)] if args.lead_ms else [])
+    extra = ["--connect", f"tcp/127.0.0.1:{sp}"]
     early = ["--early-start-ms", str(args.early_start_ms)] if args.early_start_ms is not None else []
     planner = spawn(Service.PLANNER, pp, *extra, *early)
     try:
@@ -374,6 +389,12 @@ def main() -> int:
                 for line in out.splitlines():
                     if "planned in" in line and ("Linear" in line or "Circular" in line) or "WARNING" in line:
                         print("planner log:", line.split(": ", 1)[-1])
+            else:
+                held = [line for line in out.splitlines() if "held at its last sample" in line]
+                print(f"servo log: an early start's head held at its last sample {len(held)} times")
+                for line in out.splitlines():
+                    if "WARNING" in line and "late by more than one period" not in line:
+                        print("servo log:", line.split(": ", 1)[-1])
     return 0
 
 

@@ -162,10 +162,11 @@ _EXT = (
         "setBlendDistance.", outputs=[Member("distance", w.DOUBLE, "m", "0 = exact stop")]),
     _op(_E, "setSpeedOverride", "Model-specific extension (not in the IDL): speed override of every motion, "
         f"the running one included, 0 .. {MAX_SPEED_OVERRIDE:g} %. The speed starts to change within 20 ms, "
-        "jerk-limited, by scaling time along the planned path, never leaving it: 0 holds the arm on its path (not a pause: setting "
-        "it above 0 continues), 100 (the default) runs motions as planned. It does not change "
-        "setSpeedJoint / setSpeedCartesian, which shape each motion when it is accepted; the override scales "
-        "its execution (like KUKA's $OV_PRO or UR's speed slider). Held by the servo.",
+        "jerk-limited, by scaling time along the planned path, never leaving it: 0 holds the arm on its "
+        "path (not a pause: setting it above 0 continues), 100 (the default) runs motions as planned. It "
+        "does not change setSpeedJoint / setSpeedCartesian, which shape each motion when it is accepted; "
+        "the override scales its execution (like KUKA's $OV_PRO or UR's speed slider). Held by the servo: "
+        "100 % again when the servo process restarts.",
         inputs=[Member("ratio", w.DOUBLE, "%", "0 = hold on the path, 100 = as planned")]),
     _op(_E, "getSpeedOverride", "Model-specific extension (not in the IDL): the speed override set with "
         "setSpeedOverride, as the servo last reported it.",

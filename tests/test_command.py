@@ -43,11 +43,13 @@ from jara_arm.schema.planner import (
     PLANNER_PROGRESS,
     ControlAction,
     ControlReply,
+    ControlRequest,
     MotionRequest,
     PlannerProgress,
     PlanReply,
 )
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue, Time, TimedJointPos, hg_matrix
+from jara_arm.services.runtime.timing import CONTROL_TIMEOUT
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 from .support import Client, Proc, endpoint, free_port, wait_alive, wait_until
@@ -83,8 +85,9 @@ class FakePeers:
         self.talking.set()
         self.plans: list[MotionRequest] = []
         self.controls: list[str] = []
+        self.control_requests: list[ControlRequest] = []  # each as it came, with its ratio
         self.plan_reply: tuple[int, str] = (OK, "OK")
-        self.held: list[zenoh.Query] = []  # plan queries left unanswered (planner "hangs")
+        self.held: list[zenoh.Query] = []  # plan and control queries left unanswered (planner "hangs")
         self.hang = False
         # The queue this fake planner owns (motion ids), as schema/planner.py has it.
         self._lock = threading.Lock()
@@ -93,6 +96,7 @@ class FakePeers:
         self.last_id = 0
         self.queued: tuple[int, ...] = ()
         self.paused = False
+        self.override = 100.0  # [%] the servo's speed override, as this planner reports it
         self._status = session.declare_publisher(self.keys.servo_status)
         self._progress = session.declare_publisher(self.keys.planner_progress)
         self._servo_q = session.declare_queryable(self.keys.servo_common(), self._servo_common)
@@ -146,11 +150,18 @@ class FakePeers:
         query.reply(query.key_expr, codec.encode_message(PLAN_REPLY, body))
 
     def _control(self, query: zenoh.Query) -> None:
-        action = ControlAction(codec.decode_message(CONTROL_REQUEST, query.payload.to_bytes()).action)
+        req = codec.decode_message(CONTROL_REQUEST, query.payload.to_bytes())
+        if self.hang:
+            self.held.append(query)
+            return
+        action = ControlAction(req.action)
         self.controls.append(action.value)
+        self.control_requests.append(req)
         with self._lock:
             if action in (ControlAction.STOP, ControlAction.ABORT):
                 self.queued, self.paused = (), False
+            elif action is ControlAction.OVERRIDE:  # the servo's: neither the queue nor the pause changes
+                self.override = req.ratio
             else:
                 self.paused = action is ControlAction.PAUSE
             body = ControlReply(OK, "OK", self._snapshot())
@@ -160,20 +171,22 @@ class FakePeers:
         """The queue as it is now (lock held); a new number if it changed."""
         self.seq += changed
         return PlannerProgress(Time.now(), self.queued[0] if self.queued else 0, self.queued, 0, 0,
-                               self.paused, bool(self.queued), self.started, self.seq)
+                               self.paused, bool(self.queued), self.started, self.seq, self.override)
 
     def progress(self, queued: tuple[int, ...] | None = None, paused: bool | None = None,
-                 seq: int | None = None) -> PlannerProgress:
-        """Publish the queue (changed to ``queued``/``paused`` if given), numbered ``seq`` if
+                 seq: int | None = None, override: float | None = None) -> PlannerProgress:
+        """Publish the queue (changed to ``queued``/``paused``/``override`` if given), numbered ``seq`` if
         given (an older number: a message that was on its way), else the next number."""
         with self._lock:
             if seq is None:
                 self.queued = self.queued if queued is None else tuple(queued)
                 self.paused = self.paused if paused is None else paused
+                self.override = self.override if override is None else override
                 msg = self._snapshot()
             else:
                 msg = dataclasses.replace(self._snapshot(changed=False), seq=seq,
-                                          queued=tuple(queued or ()), paused=bool(paused))
+                                          queued=tuple(queued or ()), paused=bool(paused),
+                                          override=self.override if override is None else override)
         self._progress.put(codec.encode_message(PLANNER_PROGRESS, msg))
         return msg
 
@@ -265,6 +278,7 @@ DEFAULT_SETTINGS: tuple[tuple[Interface, str, dict], ...] = (
     (Interface.MIDDLE, OP.setControlPointOffset, {"offset": hg_matrix()}),
     (Interface.MIDDLE, OP.setHome, {"jointPoint": IIWA.ready_pose}),
     (Interface.EXT, OP.setBlendDistance, {"distance": 0.0}),
+    (Interface.EXT, OP.setSpeedOverride, {"ratio": 100.0}),  # the servo keeps it across servoOFF
 )
 
 
@@ -297,6 +311,7 @@ def fake(rigs: Rigs) -> Iterator[tuple[Rig, FakePeers]]:
     peers.progress(queued=(), paused=False)
     peers.plans.clear()
     peers.controls.clear()
+    peers.control_requests.clear()
     yield rigs.fake, peers
     peers.held.clear()
 
@@ -777,6 +792,53 @@ def test_alarm_refuses_motions_and_set_soft_limit(fake):
     assert peers.plans == [] and peers.controls == []
 
 
+# ---------------------------------------------------------------------------- the speed override (Ext)
+
+
+def test_set_speed_override_reaches_the_planner_and_its_reply_is_read_at_once(fake):
+    rig, peers = fake
+    c = rig.client
+    rig.ok(Interface.EXT, OP.setSpeedOverride, {"ratio": 30})
+    assert peers.control_requests == [ControlRequest("override", 30.0)]
+    assert c.ext(OP.getSpeedOverride)["ratio"] == 30.0  # from the reply's progress: no publication needed
+    # 0 holds on the path: no pause (bit 0x10 clear, resume ignored), the queue untouched.
+    rig.ok(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 50})
+    rig.ok(Interface.MIDDLE, OP.goHome)
+    rig.ok(Interface.EXT, OP.setSpeedOverride, {"ratio": 0.0})
+    assert peers.control_requests[-1] == ControlRequest("override", 0.0)
+    assert c.ext(OP.getSpeedOverride)["ratio"] == 0.0
+    assert rig.state() == StateBit.SERVO_ON | StateBit.MOVING
+    r = c.middle(OP.resume)
+    assert r.id == OK and "not paused" in r.comment, r
+    rig.ok(Interface.EXT, OP.setSpeedOverride, {"ratio": 100})
+    assert peers.controls == ["override", "override", "override"] and len(peers.plans) == 1
+
+
+def test_a_bad_speed_override_names_ratio_and_reaches_nothing(fake):
+    rig, peers = fake
+    key = rig.keys.interface(Interface.EXT, OP.setSpeedOverride)
+    for bad in (-1, 101, 100.5, math.nan, "fast"):
+        reply = rig.client.raw(key, msgpack.packb({"ratio": bad}))
+        assert reply["id"] == VALUE_ERR and reply["comment"].startswith("ratio"), (bad, reply)
+    assert peers.controls == [] and peers.control_requests == []
+    assert rig.client.ext(OP.getSpeedOverride)["ratio"] == 100.0  # unchanged
+
+
+def test_get_speed_override_answers_from_the_newest_progress(fake):
+    rig, peers = fake
+    c = rig.client
+    assert c.ext(OP.getSpeedOverride)["ratio"] == 100.0  # reset set it through the planner
+    peers.progress(override=55.0)  # the servo's override, published by the planner
+    wait_until(lambda: c.ext(OP.getSpeedOverride)["ratio"] == 55.0, 2, what="the published override read")
+    # A message numbered before the last (on its way meanwhile) changes nothing; the next one is read.
+    # Both on one key from one publisher: once the second is in, the first was taken up too.
+    peers.progress(override=10.0, seq=peers.seq - 1)
+    peers.progress(queued=(1,))  # newer, the override still 55
+    wait_until(lambda: rig.state() & StateBit.MOVING, 2, what="the newer progress read")
+    assert c.ext(OP.getSpeedOverride)["ratio"] == 55.0
+    assert peers.controls == []  # a getter asks no one
+
+
 def test_silent_planner_and_servo_are_named(fake):
     rig, peers = fake
     rig.ok(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 50})
@@ -784,6 +846,10 @@ def test_silent_planner_and_servo_are_named(fake):
     t0 = time.monotonic()
     r = rig.client.middle(OP.goHome)
     assert r.id == NG and "planner" in r.comment and time.monotonic() - t0 < FAKE_PLAN_TIMEOUT + 1.0, r
+    t0 = time.monotonic()
+    r = rig.client.ext(OP.setSpeedOverride, {"ratio": 50})
+    assert r.id == NG and "planner" in r.comment and time.monotonic() - t0 < CONTROL_TIMEOUT + 1.0, r
+    assert rig.client.ext(OP.getSpeedOverride)["ratio"] == 100.0  # the planner's last word, still held
     peers.hang = False
     peers.talking.clear()  # the servo falls silent
     wait_until(lambda: not rig.state() & StateBit.SERVO_ON, 3, what="servo bit cleared")
@@ -801,6 +867,8 @@ def test_planner_gone_discards_the_queue(fake):
     peers.planner_token.undeclare()
     try:
         wait_until(lambda: rig.state() == StateBit.SERVO_ON, 3, what="queue forgotten")
+        r = rig.client.ext(OP.getSpeedOverride)  # the servo's override is known only through the planner
+        assert r.id == NG and "planner" in r.comment, r
     finally:
         peers.planner_token = rig.session.liveliness().declare_token(peers.keys.alive(Service.PLANNER))
 

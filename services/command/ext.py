@@ -1,24 +1,32 @@
 """``Ext``: the command service's model-specific operations, outside the JARA_ARM IDL.
 
 Served at ``JARA_ARM/<arm>/Ext/<op>`` with the IDL's reply rules (``RETURN_ID``,
-``VALUE_ERR`` naming the field). The values live in the same :class:`Settings`
-as the Middle ones (``CommandMiddle`` owns them), so that every motion's
-``MotionSettings`` snapshot carries them.
+``VALUE_ERR`` naming the field). The blend distance lives in the same
+:class:`Settings` as the Middle ones (``CommandMiddle`` owns them), so that
+every motion's ``MotionSettings`` snapshot carries it. The speed override is
+not a setting of the command: the servo holds it and applies it to the motion
+in progress, so it goes there through the planner's control (as ``pause``
+does), and is read back from the planner's newest progress.
 """
 
 from __future__ import annotations
 
 from jara_arm.schema.codec import Reply
-from jara_arm.services.runtime.rpc import ok
+from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.operations import MAX_SPEED_OVERRIDE, OP
+from jara_arm.schema.planner import ControlAction
+from jara_arm.services.runtime.rpc import ok, refuse
 
 from .middle import CommandMiddle
 
 
 class CommandExt:
-    """The Ext interface; runs on its own RPC thread, changing the settings through ``middle``."""
+    """The Ext interface; runs on its own RPC thread, changing the settings through ``middle``
+    and reaching the planner and the state through ``middle.core``."""
 
     def __init__(self, middle: CommandMiddle) -> None:
-        self._middle = middle
+        self._middle = middle  # its core is read per call: the settings-only tests build it without one
 
     def setBlendDistance(self, distance: float) -> Reply:
         """For the motions accepted from now on; queued ones keep the distance they were accepted with."""
@@ -27,3 +35,28 @@ class CommandExt:
 
     def getBlendDistance(self) -> Reply:
         return ok(distance=self._middle.settings.blend_distance)
+
+    def setSpeedOverride(self, ratio: float) -> Reply:
+        """Forwarded to the servo (through the planner), which applies it to the motion in progress too.
+
+        Accepted in any state: the servo keeps it while off or alarmed, for the
+        motions to come. Not under ``core.serial``: a speed override must act at
+        once, not wait while Middle's thread plans a motion, and it checks no state
+        that a motion, pause or stop could change meanwhile.
+        """
+        if not 0.0 <= ratio <= MAX_SPEED_OVERRIDE:  # NaN fails too (the codec already refuses it)
+            raise WireError("ratio", f"the speed override is 0 .. {MAX_SPEED_OVERRIDE:g} %, got {ratio}")
+        core = self._middle.core
+        answer = core.planner.control(ControlAction.OVERRIDE, ratio)
+        core.state.on_progress(answer.progress)  # getSpeedOverride read next shows it
+        return answer.reply
+
+    def getSpeedOverride(self) -> Reply:
+        """The servo's override as the planner's newest progress (published or in a reply) reports it."""
+        progress = self._middle.core.state.planner_progress()
+        if progress is None:
+            # The servo's word comes only through the planner: without it there is nothing to say (NG, as
+            # every planner call without a planner, naming the missing service).
+            return refuse(ReturnCode.NG, f"{OP.getSpeedOverride}: no Planner/progress from the "
+                          "planner service: is it running?")
+        return ok(ratio=progress.override)

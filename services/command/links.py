@@ -114,9 +114,10 @@ class PlannerLink(_Peer):
             return PlannerAnswer(self.malformed(key, exc))
         return PlannerAnswer(Reply(plan.id, plan.comment), plan.motion, plan.progress)
 
-    def control(self, action: ControlAction) -> PlannerAnswer:
+    def control(self, action: ControlAction, ratio: float = 100.0) -> PlannerAnswer:
+        """The planner's verdict on ``action``; ``ratio`` [%] is the speed override (``OVERRIDE`` only)."""
         key = self._keys.planner_control
-        got = self.query(key, codec.encode_message(CONTROL_REQUEST, ControlRequest(action.value)))
+        got = self.query(key, codec.encode_message(CONTROL_REQUEST, ControlRequest(action.value, ratio)))
         if isinstance(got, Reply):
             return PlannerAnswer(got)
         try:

@@ -13,7 +13,8 @@ The command owns none of the facts it reports; it reads each from its owner:
 * 0x08 queue full: the planner's queue holds ``capacity`` motions.
 * 0x10 paused: the planner says so.
 
-The planner's queue and pause come in its ``PlannerProgress``, by publication
+The planner's queue and pause (and the servo's speed override, which
+``Ext/getSpeedOverride`` reads) come in its ``PlannerProgress``, by publication
 and in the reply to every plan and control call; the newest one by its number
 wins (``schema.planner.is_newer``), so a publication that arrives after a
 reply it predates changes nothing. A planner or monitor that went away takes
@@ -118,6 +119,10 @@ class StateTracker:
         if st is None or not st.pos:
             return None
         return st.pos, time.monotonic() - at
+
+    def planner_progress(self) -> PlannerProgress | None:
+        """The planner's newest ``PlannerProgress``; None before the first one and while the planner is away."""
+        return self._progress  # one read: the inputs replace it whole
 
     @property
     def soft_limit_joint(self) -> tuple[LimitValue, ...]:

@@ -273,8 +273,12 @@ class ServoLoop:
         law = self.law
         interp = self.interp
         if interp.active and law.braking is None and not interp.holding:
+            ran_out = interp.ran_out
             law.fifo.appendleft(interp.next())  # ahead of any client's: it is the one that runs
             self._from_client = False
+            if interp.ran_out != ran_out:  # the cap should prevent it: worth knowing when it does not
+                self._log.warning("the early start's head of motion %d held at its last sample: its rest "
+                                  "was late", interp.running)
         # Only a low-level client's stream may be late (over the network); the interpolator never is.
         if (self._from_client and not law.fifo and law.moving and law.braking is None
                 and self.servo_on and not self.alarmed):
