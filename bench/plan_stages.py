@@ -12,7 +12,8 @@ For a 0.5 m LIN and a half circle (radius 0.15 m) at 0.25 m/s on iiwa and panda
 * plan: ``MotionPlanner.plan`` as a whole (other = plan minus the stages above);
 * pipe: ``PlanningProcess.plan`` (the child plans the same motion) minus the plan: pickling both ways,
   the pipe, the profile rebuilt in the parent, less the preview (the child sends it after the motion);
-* submit: ``Streamer.submit`` to the streamer thread's first ``PositionBlock`` (fake servo status, no Zenoh).
+* hand-over: the CPU the hand-over of the motion to the servo costs, without the network: the ``Trajectory``
+  message encoded (the planner), decoded and made ready for the interpolator (the servo, ``prepare``).
 
     python bench/plan_stages.py [--n 15] [--robots iiwa,panda]
 
@@ -26,7 +27,6 @@ import collections
 import contextlib
 import functools
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -34,15 +34,16 @@ from typing import Any
 import numpy as np
 
 from jara_arm.robots import RobotModel, robot
-from jara_arm.schema import messages
+from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
+from jara_arm.schema.motion import TRAJECTORY, Trajectory
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionRequest, MotionSettings
-from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue, Time
+from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
 from jara_arm.services.planner import collision, paths, planning, profile, sampling, trajectory
 from jara_arm.services.planner.planning import MotionPlanner
-from jara_arm.services.planner.streamer import Streamer
 from jara_arm.services.planner.worker import PlanningProcess
+from jara_arm.services.servo.interpolator import prepare
 
 #: (stage, owner, attribute): every call of ``owner.attribute`` counts towards the stage.
 _STAGES: tuple[tuple[str, Any, str], ...] = (
@@ -135,36 +136,15 @@ def speed_check(planner: MotionPlanner, q: np.ndarray, s: MotionSettings) -> flo
     return time.perf_counter() - t
 
 
-def first_block_after_submit(model: RobotModel, motion: trajectory.PlannedMotion, n: int) -> list[float]:
-    """[s] from ``Streamer.submit`` to the streamer thread handing its first block to the publisher."""
-    sent = threading.Event()
-    at: list[float] = []
-    target = tuple(motion.start.tolist())
-
-    def status() -> messages.ServoStatus:
-        return messages.ServoStatus(Time.from_seconds(time.time()), True, False, False, 0, 0, 0, 0,
-                                    (0.0,) * model.dof, (0.0,) * model.dof, target)
-
-    def publish(_payload: bytes) -> None:
-        if not sent.is_set():
-            at.append(time.perf_counter())
-            sent.set()
-
+def hand_over(model: RobotModel, motion: trajectory.PlannedMotion, n: int) -> list[float]:
+    """[s] encoding the motion's ``Trajectory``, decoding it and ``prepare`` (no network)."""
     out = []
     for _ in range(n):
-        streamer = Streamer(model.dof, model.cmd_cycle, publish, lambda _p: None, status, realtime_priority=0)
-        streamer.start()
-        try:
-            time.sleep(0.05)  # idle: the thread waits for work as in the service
-            _, generation = streamer.start_point()
-            sent.clear()
-            t = time.perf_counter()
-            streamer.submit(motion, generation)
-            if not sent.wait(1.0):
-                raise RuntimeError("the streamer sent nothing")
-            out.append(at[-1] - t)
-        finally:
-            streamer.close()
+        t = time.perf_counter()
+        payload = codec.encode_message(TRAJECTORY, Trajectory(1, 1, 0, -1, True, model.dof, motion.q.reshape(-1)))
+        traj = codec.decode_message(TRAJECTORY, payload)
+        prepare(traj.motion, traj.rows(), traj.final, model.cmd_cycle, np.ones(model.dof))
+        out.append(time.perf_counter() - t)
     return out
 
 
@@ -192,11 +172,11 @@ def run(name: str, n: int) -> list[str]:
                 child.plan(req, start)
                 rows["child plan + pipe"].append(time.perf_counter() - t)
             assert motion is not None
-            rows["submit -> first block"] = first_block_after_submit(model, motion, min(n, 5))
+            rows["hand-over"] = hand_over(model, motion, n)
             med = {k: 1e3 * float(np.median(v)) for k, v in rows.items()}
             med["pipe"] = med["child plan + pipe"] - med["plan"]
             order = list(dict.fromkeys(s for s, _, _ in _STAGES)) + ["speed", "other", "plan", "pipe",
-                                                                     "child plan + pipe", "submit -> first block"]
+                                                                     "child plan + pipe", "hand-over"]
             lines.append(f"{name} {what} ({len(motion.q)} samples), median of {n} [ms]: "
                          + ", ".join(f"{k} {med[k]:.2f}" for k in order))
     finally:

@@ -134,7 +134,7 @@ class _Parsers:
                           "publication it forwards is best effort and it never waits on a client")
         role.add_argument("--bus", action="store_true",
                           help="a router of the cell bus, which only services and gateways join: its blocking "
-                          "position stream reaches the gateways as best effort")
+                          "publications (low-level position commands) reach the gateways as best effort")
         self.router.add_argument("--gateway-id", action="append", default=[], metavar="HEX",
                                  help=f"the gateway's Zenoh id (default: {GATEWAY_ZID}); with --bus, every "
                                  "gateway's (repeatable)")

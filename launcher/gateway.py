@@ -5,7 +5,7 @@ thread that received it (eclipse-zenoh/zenoh#2585, "subscriber sessions share fa
 whose queue is full holds that thread up (``wait_before_drop`` for a droppable message, up to
 ``wait_before_close`` for a blocking one), and with it every other session's messages from the same
 sender. With services and user tools on one router, one slow GUI stalled the heartbeats and the
-position stream of an arm. So ``jara-arm up`` runs two routers:
+motion hand-overs of an arm. So ``jara-arm up`` runs two routers:
 
 - the **cell bus**, in the launcher process (real-time priority): only the cell's own services join
   it, on a private endpoint (a Unix socket in a directory only the cell's user can open).
@@ -17,8 +17,8 @@ position stream of an arm. So ``jara-arm up`` runs two routers:
   :data:`GATEWAY_WAIT_BEFORE_CLOSE` is disconnected. So the worst a client can do is lose samples of
   its own and slow other clients; the bus sees one reader, the gateway, which never waits on anyone.
 
-On the bus, the only blocking publications (the planner's position stream, ``Traffic.STREAM``) are
-turned into best effort on their way to the gateway (by the gateway's Zenoh id), so a gateway that
+On the bus, the only blocking publications (a low-level client's ``Servo/posCmd``, ``Traffic.STREAM``)
+are turned into best effort on their way to the gateway (by the gateway's Zenoh id), so a gateway that
 falls behind costs the bus nothing but those samples. A reply travels with its query's congestion
 control and priority: the services' queriers ask with ``Traffic.REPLY`` (best effort), and the
 gateway makes every client's query best effort on its way in.

@@ -55,7 +55,7 @@ class RouterSettings:
     identity: str = ROUTER_IDENTITY
     #: a client gateway (``--gateway``): best effort to every client, never waiting on one (launcher/gateway.py)
     gateway: bool = False
-    #: a router of the cell bus (``--bus``): its blocking stream reaches the gateways as best effort
+    #: a router of the cell bus (``--bus``): its blocking publications reach the gateways as best effort
     bus: bool = False
     #: the Zenoh id of the gateway (``gateway``), or of the gateways the bus knows (``bus``)
     gateway_ids: tuple[str, ...] = (GATEWAY_ZID,)

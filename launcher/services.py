@@ -52,8 +52,8 @@ class ServiceSpec:
 
 # One line per service, lower layers first.
 SERVICES: tuple[ServiceSpec, ...] = (
-    ServiceSpec(Service.SERVO, "jara_arm.services.servo", "low level: simulated arm, SyncFIFO servo loop, Servo/Common"),
-    ServiceSpec(Service.PLANNER, "jara_arm.services.planner", "middle level: plans, queues and streams motions to the servo"),
+    ServiceSpec(Service.SERVO, "jara_arm.services.servo", "low level: simulated arm, servo loop, interpolator, SyncFIFO, Servo/Common"),
+    ServiceSpec(Service.PLANNER, "jara_arm.services.planner", "middle level: plans motions and hands them to the servo whole"),
     ServiceSpec(Service.COMMAND, "jara_arm.services.command", "middle level: Common and Middle, state, settings, motion queue"),
     ServiceSpec(Service.ALARM_MONITOR, "jara_arm.services.alarm_monitor", "active alarms: detection, reactions, alarm events"),
 )

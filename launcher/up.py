@@ -59,8 +59,8 @@ class UpSettings:
     bus: tuple[str, ...] = ()
 
 
-#: SCHED_FIFO priority of the cell bus's threads: between the servo (40) and the planner (30). The client
-#: gateway runs at normal priority: its work is what clients ask for, without bound.
+#: SCHED_FIFO priority of the cell bus's threads: below the servo (40). The client gateway runs at
+#: normal priority: its work is what clients ask for, without bound.
 ROUTER_RT_PRIORITY = 35
 GATEWAY_LABEL = "client gateway"
 
@@ -107,7 +107,8 @@ def bus_secure(settings: UpSettings) -> bool:
     """Whether the cell bus itself runs the secure cell's TLS and roles: only when it is opened to other
     hosts (``--bus-listen``). On its private socket alone it needs neither (the socket's directory lets
     only the cell's OS user in), and access control on every message of every service cost the
-    real-time bus enough CPU to starve the planner's stream beside a TLS observer."""
+    real-time bus enough CPU to starve the services beside a TLS observer (measured with the planner's
+    former position stream)."""
     return bool(settings.router.secure and settings.bus)
 
 
@@ -229,8 +230,8 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
     """Run until ``signals.stop``; 0 once every child is stopped. RouterError if the router cannot open."""
     settings.router.config_object()  # RouterError (a usage error) for endpoints or a config the gateway cannot take
     with private_bus() as bus, open_router(cell_bus := bus_settings(settings, bus)) as session:
-        # The bus carries the 1 kHz position stream from planner to servo: starved by
-        # normal-priority work, it would let the servo FIFO run dry.
+        # The bus carries the heartbeats, the alarm reports and the hand-overs: starved by
+        # normal-priority work, it would make live services look hung.
         realtime_process(ROUTER_RT_PRIORITY, "router", skip_caller=True)
         gateway = gateway_settings(settings, bus)
         gateway.announce()  # how open the cell is, said here: the gateway's own saying is not echoed

@@ -206,7 +206,7 @@ class ArmKeys:
     @_key('publisher (internal)', 'servo', '`ServoStatus`, every 10 cycles (every 100, and on any change, while settled at rest)',
           KeyEncoding.MSGPACK, Traffic.CONTROL)
     def servo_status(self) -> str:
-        """``ServoStatus`` from the servo at a few hundred Hz: FIFO, velocities, efforts."""
+        """``ServoStatus`` from the servo at 100 Hz while it moves: FIFO, velocities, efforts."""
         return f"{self.root}/Servo/status"
 
     @property
@@ -257,7 +257,7 @@ class ArmKeys:
     @_key('publisher (internal)', 'planner', '`PlannedPath`: the control point polyline of each accepted motion',
           KeyEncoding.MSGPACK, Traffic.INFO)
     def planner_path(self) -> str:
-        """``PlannedPath`` from the planner, once per accepted motion (not on the streaming thread)."""
+        """``PlannedPath`` from the planner, once per accepted motion."""
         return f"{self.root}/Planner/path"
 
     @property

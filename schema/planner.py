@@ -5,7 +5,8 @@ The command service owns the state machine and the settings: it checks state
 accepted-by-state motion to the planner with a snapshot of the settings. The
 planner owns the motion queue and the pause: it gives each motion its id,
 checks geometry (limits, reachability, speed, arcs), plans it from the end of
-the previous queued motion, queues it, and streams it to the servo in order.
+the previous queued motion, and hands it to the servo's interpolator
+(``schema/motion.py``), which runs the motions in order.
 Everything here lives under ``JARA_ARM/<arm>/Planner/``.
 
 * ``Planner/plan`` (queryable): ``MotionRequest`` -> ``PlanReply``.
@@ -99,12 +100,12 @@ class PlannerProgress:
     """What the planner is doing; motions complete strictly in queue order."""
 
     tm: Time = wire(w.TIME)
-    running: int = wire(w.ULONG)  # motion id being streamed, 0 when none
+    running: int = wire(w.ULONG)  # motion id the servo runs, 0 when none (or holding paused)
     queued: tuple[int, ...] = wire(w.SeqType("ULONGSeq", w.ULONG))  # accepted, not finished, running one first
     lastDone: int = wire(w.ULONG)  # id of the last motion that reached its end, 0 when none
     lastDiscarded: int = wire(w.ULONG)  # highest id discarded by stop/abort/a servo fault, 0 when none
     paused: bool = wire(w.BOOLEAN)
-    streaming: bool = wire(w.BOOLEAN)  # position commands are being sent
+    streaming: bool = wire(w.BOOLEAN)  # the servo's interpolator commands the arm (the name is older)
     started: Time = wire(w.TIME)  # when this planner process started: a restarted planner is newer
     seq: int = wire(w.ULONG)  # grows with every change of the members above but ``tm``
     override: float = wire(w.DOUBLE, "%", "the servo's speed override (Ext/setSpeedOverride)", default=100.0)

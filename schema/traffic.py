@@ -29,8 +29,8 @@ class TrafficClass:
 class Traffic(enum.Enum):
     """The traffic classes, highest priority first."""
 
-    #: The planner's position stream: a lost block is a gap in the servo's FIFO, so it waits (on the
-    #: cell bus only: it never reaches a client as ``block``).
+    #: A low-level client's position commands (``Servo/posCmd``): a lost one is a gap in the servo's
+    #: SyncFIFO, so it waits (towards the servo only: it never reaches a client as ``block``).
     STREAM = TrafficClass("real_time", "block", True,
                           "the arm's position commands: never lost, never behind anything")
     #: Evidence of health and alarms raised: a late heartbeat is a false "hung".

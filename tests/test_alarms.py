@@ -585,7 +585,11 @@ def check_fault_without(arm: System, service: Service, code: AlarmCode) -> None:
     """While ``service`` is down or stopped: the other Common interface lists the FAULT and sets bit 0x04."""
     common = arm.servo if service is Service.COMMAND else arm.common  # ask one that answers
     reply = common(OP.getActiveAlarm)  # forwarded to the monitor
-    assert [(a.code, a.type) for a in arm.ok(reply)["alarms"]] == [(code, AlarmType.FAULT)], reply
+    alarms = arm.ok(reply)["alarms"]
+    assert [(a.code, a.type) for a in alarms[:1]] == [(code, AlarmType.FAULT)], reply
+    # and, when the FAULT cut the queued motions short while the servo lived, the 0x420 WARNING naming them
+    assert all(a.code == AlarmCode.MOTION_NOT_COMPLETED and a.type is AlarmType.WARNING
+               and "discarded before their end" in a.description for a in alarms[1:]), reply
     wait_until(lambda: common(OP.getState)["state"] & StateBit.ALARM, 0.5, 0.005,
                f"bit 0x04 of the {'servo' if service is Service.COMMAND else 'command'}'s state")
 
@@ -718,7 +722,9 @@ def test_monitor_killed_in_the_middle_of_a_motion(arm: System):
     cause = time.time()
     os.kill(arm.pid(Service.ALARM_MONITOR), signal.SIGKILL)
     servo_alarm_latency(arm, "alarm-monitor SIGKILL (servo's state)", cause)
-    assert [a.code for a in arm.servo(OP.getActiveAlarm)["alarms"]] == [AlarmCode.MONITOR_LOST]
+    # the cause, then the motions it cut short (0x420 WARNING)
+    assert [a.code for a in arm.servo(OP.getActiveAlarm)["alarms"]] == [AlarmCode.MONITOR_LOST,
+                                                                          AlarmCode.MOTION_NOT_COMPLETED]
     arm.proc.wait_for_line("arm0/alarm-monitor: alarm monitor up", timeout=20, start=mark)
     wait_alive(arm.session, "arm0", [Service.ALARM_MONITOR], timeout=10)
     _, event = arm.event(AlarmCode.MONITOR_LOST, since)  # raised by the new monitor on the servo's report
@@ -738,7 +744,8 @@ def test_monitor_hung_by_sigstop(arm: System):
         servo_alarm_latency(arm, "alarm-monitor SIGSTOP (servo's state; threshold "
                             f"{SAME_HOST.hung_after * 1e3:.0f} ms)", cause)
         reply = arm.servo(OP.getActiveAlarm)  # the monitor does not answer: the servo's own, said so
-        assert [a.code for a in reply["alarms"]] == [AlarmCode.MONITOR_HUNG] and "monitor" in reply.comment
+        assert [a.code for a in reply["alarms"]] == [AlarmCode.MONITOR_HUNG, AlarmCode.MOTION_NOT_COMPLETED]
+        assert "monitor" in reply.comment
         kept = arm.servo(OP.clearAlarms)
         assert kept.id == ReturnCode.STATUS_ERR and "0x413" in kept.comment, kept
         assert not arm.servo(OP.getState)["state"] & StateBit.SERVO_ON

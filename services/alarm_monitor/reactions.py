@@ -2,8 +2,9 @@
 
 * FAULT: ``Servo/Common/servoOFF`` (the servo makes a controlled stop and
   holds; it has already stopped by itself if it follows ``Monitor/alarms``)
-  and ``Planner/control abort`` (nothing more is streamed, the queue is
-  discarded; the command service sees it in ``Planner/progress``).
+  and ``Planner/control abort`` (the servo's buffered motions are discarded,
+  if the servo has not done it itself; the command service sees it in
+  ``Planner/progress``).
 * WARNING: ``Planner/control stop`` (the queue is discarded); the servo stays
   on (it stops the arm by itself on the new list and holds it).
 

@@ -73,7 +73,7 @@ class CommandCommon:
         core = self.core
         with core.serial:
             reply = core.servo.call(OP.servoOFF)
-            # Abort even if the servo did not answer: nothing must be streamed any more.
+            # Abort even if the servo did not answer: no buffered motion may run once it is back.
             abort = core.planner.control(ControlAction.ABORT)
             core.state.on_progress(abort.progress)
             if reply.ok:

@@ -1,1 +1,1 @@
-"""Planner service: paths, Ruckig timing, the position-command stream (kinematics: jara_arm.kinematics)."""
+"""Planner service: paths, Ruckig timing, the hand-over of whole motions to the servo (kinematics: jara_arm.kinematics)."""

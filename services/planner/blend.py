@@ -12,11 +12,11 @@ jerk limit: it never stops at the corner.
 The planner (``planning.py``) checks the blend's control point stays within
 ``d`` of the corner, its joints within the soft limits, and the whole blend
 clear of collisions; any failure keeps the exact stop for that corner. The
-streamer (``streamer.py``) streams the previous motion up to the cut, the blend,
-then the next motion from the rejoin; a pause or stop during the blend brakes
-with a joint-space Ruckig stop (:func:`joint_stop`), and a resume from there
-goes back onto the path at the rejoin point at rest (:func:`joint_move`) and
-continues along the path from there.
+servo (``servo/interpolator.py``) runs the previous motion up to the cut, the
+blend, then the next motion from the rejoin, as one buffered path: a pause or
+stop in the blend slows down on the blend itself, and a resume goes on along it.
+A blend that reaches the servo after it has passed the cut is handed over as
+the exact stop (``planner/handover.py``).
 
 Samples are ``dt`` apart (the servo period); every trajectory here lasts a whole
 number of periods so that its last sample is its target exactly.
@@ -149,27 +149,6 @@ def joint_blend(start: tuple[Joints, Joints, Joints], end: tuple[Joints, Joints,
     return _sample(_whole_periods(inp, n, dt), dt, end)
 
 
-def joint_stop(q: Joints, dq: Joints, ddq: Joints, limits: JointLimits, dt: float) -> JointTrajectory:
-    """Braking to rest from (q, dq, ddq) within ``limits`` (Ruckig velocity interface, every axis at once)."""
-    n = len(q)
-    inp = _input(q, dq, ddq, limits)
-    inp.control_interface = ruckig.ControlInterface.Velocity
-    inp.target_velocity = [0.0] * n
-    inp.target_acceleration = [0.0] * n
-    traj = _whole_periods(inp, n, dt)
-    (end, _, _) = traj.at_time(traj.duration)
-    return _sample(traj, dt, (np.array(end), np.zeros(n), np.zeros(n)))
-
-
-def joint_move(q0: Joints, q1: Joints, limits: JointLimits, dt: float) -> JointTrajectory:
-    """From rest at ``q0`` to rest at ``q1`` within ``limits``, time-synchronised."""
-    n = len(q0)
-    zero = np.zeros(n)
-    if np.array_equal(q0, q1):
-        return JointTrajectory(q0[None].copy(), zero[None], zero[None], dt)
-    return joint_blend((q0, zero, zero), (q1, zero, zero), limits, dt)
-
-
 def cut_points(previous: NDArray[np.float64], following: NDArray[np.float64], radius: float) -> tuple[int, int]:
     """(cut, rejoin): the first sample of ``previous`` (control points (N, 3) [m], ending at the corner)
     from which on it stays within ``radius`` of the corner, and the last sample of ``following``
@@ -185,4 +164,4 @@ def cut_points(previous: NDArray[np.float64], following: NDArray[np.float64], ra
 
 
 __all__ = ["Blend", "BlendError", "JointLimits", "JointTrajectory", "UNBLENDED_OPS", "cut_points",
-           "joint_blend", "joint_move", "joint_stop", "state_at"]
+           "joint_blend", "state_at"]

@@ -176,7 +176,15 @@ class Handover:
         """``Servo/trajectory``; a servo that does not answer refuses (PlanRefused)."""
         reply = self._ask_trajectory(traj)
         if reply is None:
-            raise PlanRefused(ReturnCode.STATUS_ERR, "the servo did not answer Servo/trajectory")
+            # It may have buffered the motion and lost only the reply: a motion refused to the client must
+            # not run, so the servo stops its queue (what it already runs slows down to rest on its path).
+            with self._lock:
+                self._last_id = max(self._last_id, traj.motion)  # the servo may know this id: never reuse it
+            stopped = self._ask_control(MotionControl(MotionAction.STOP.value))
+            if stopped is not None:
+                self._adopt(stopped.progress)
+            raise PlanRefused(ReturnCode.STATUS_ERR, "the servo did not answer Servo/trajectory; its queue was "
+                              + ("stopped" if stopped is not None else "not stopped either: it does not answer"))
         self._adopt(reply.progress)
         return reply
 

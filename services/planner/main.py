@@ -77,7 +77,7 @@ _REPLAN = 3
 
 
 class PlannerService:
-    """``Planner/plan`` and ``Planner/control`` queryables, the status watch and the streamer."""
+    """``Planner/plan`` and ``Planner/control`` queryables, and the hand-over to the servo."""
 
     def __init__(self, ctx: ServiceContext, planner: PlanningProcess, heads: MotionPlanner) -> None:
         session, keys = ctx.session, ctx.keys

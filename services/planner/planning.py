@@ -119,7 +119,7 @@ EARLY_OPS = frozenset({"moveLinearCartesianAbs", "moveLinearCartesianRel", "move
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Head:
-    """The checked first samples of a LIN / CIRC still being planned: what may be streamed before acceptance.
+    """The checked first samples of a LIN / CIRC still being planned: what the servo may run before acceptance.
 
     ``motion.q``: the samples that may go out (at most the early-start time's);
     ``motion.path``: the joints up to the head's end (the path's first knot interval), every sample on the
@@ -179,7 +179,7 @@ class MotionPlanner:
                  early_start: float = EARLY_START) -> None:
         """``obstacles``: the world's boxes (the model's own and the ``--obstacle`` ones, in the world frame);
         ``collision_margin`` [m]: the clearance every link keeps from them (``collision.py``);
-        ``early_start`` [s]: how much of a LIN / CIRC its head may stream before acceptance (``plan(head=)``)."""
+        ``early_start`` [s]: how much of a LIN / CIRC its head may run before acceptance (``plan(head=)``)."""
         self.model = model
         self.early_start = early_start
         self._head: list[Head] | None = None  # plan() within head(): where _cartesian puts it

@@ -1,8 +1,8 @@
 """A planned motion: joints as a function of the path parameter, and its speed profile.
 
-The streamer only ever needs joints at values of the path parameter ``s``
-(the nominal profile's samples, a braking profile's, a resumed profile's), so
-every motion carries a :class:`JointMap` ``s -> q``:
+The planner needs joints at values of the path parameter ``s`` (the nominal
+profile's samples, an early start's continuation after its head), so every
+motion carries a :class:`JointMap` ``s -> q``:
 
 * :class:`LineMap` -- a joint-space line (PTP, goHome, gripper): exact.
 * :class:`TableMap` -- a Cartesian path (LIN, CIRC): the joints at the
@@ -80,7 +80,7 @@ class TableMap:
         return out
 
 
-#: ``PlannedMotion.motion`` of a motion not queued (yet): the queue gives the ids (``Streamer.submit``).
+#: ``PlannedMotion.motion`` of a motion not handed over (yet): ``Handover.submit`` gives the ids.
 UNQUEUED = 0
 
 
@@ -88,7 +88,7 @@ UNQUEUED = 0
 class PlannedMotion:
     """One planned motion: its id, its joint map, its nominal profile and samples."""
 
-    motion: int  # id given by the planner's queue, UNQUEUED before
+    motion: int  # id given at the hand-over to the servo, UNQUEUED before
     op: str  # IDL operation name
     path: JointMap
     profile: PathProfile  # nominal, from rest at s = 0 to rest at the end (an early start's: from where it went on)
@@ -98,7 +98,7 @@ class PlannedMotion:
     #: viewer draws (``Planner/path``); empty until the planner fills it in
     preview: NDArray[np.float64] = dataclasses.field(default_factory=lambda: np.zeros((0, 3)))
     #: the blend of the corner with the previous queued motion (``blend.py``); None: exact stop. ``q``
-    #: is always the exact-stop motion, streamed whenever the blend cannot be (e.g. after a pause)
+    #: is always the exact-stop motion, handed over whenever the blend is too late for its cut
     blend: Blend | None = None
 
     @property

@@ -1,11 +1,9 @@
 """The planning process: :class:`MotionPlanner` runs in a child process of its own.
 
 Planning a LIN or CIRC solves IK at every servo period and holds the CPU for
-a good fraction of a second. In the streaming process that computation would
-hold the GIL, and whenever the OS preempts the planning thread while it holds
-it, the streamer would wait with it -- long enough for the servo's FIFO to run
-dry on a loaded machine. In a child process it only competes for a CPU, where
-the streamer's real-time priority wins.
+a good fraction of a second. In the service's process that computation would
+hold the GIL, and the control queries (pause, stop) and the early start's head
+would wait behind it. In a child process it only competes for a CPU.
 
 The child is started with ``spawn`` (the parent has Zenoh threads), receives
 ``(MotionRequest, start joints, previous motion or None)`` on a pipe and sends back the

@@ -79,6 +79,9 @@ LIMIT_TOLERANCE = 1e-3
 REPORT_AGAIN = 0.5
 #: ``Servo/motion`` at least this often [s], and at once on every change.
 MOTION_EVERY = 0.1
+#: Motions a servoOFF discarded are taken as discarded by an alarm that arrives this soon after it [s]:
+#: the alarm monitor's reaction to a FAULT (servoOFF) may overtake its alarm list.
+OFF_FOR_ALARM = 1.0
 
 _SERVO_ON, _MOVING, _ALARM = int(StateBit.SERVO_ON), int(StateBit.MOVING), int(StateBit.ALARM)
 
@@ -124,6 +127,7 @@ class ServoLoop:
         # The accepted motions, whole, and the time scale they run at (interpolator.py).
         self.interp = Interpolator(model.dof, self.dt)
         self._from_client = False  # the last command came from a low-level client's SyncFIFO
+        self._off_discarded: tuple[list[int], float] | None = None  # (motions, monotonic time) of a servoOFF
         self._started = Time.now()
         self._motion_seq = 0
         self._motion_said: tuple[object, ...] = ()
@@ -375,22 +379,31 @@ class ServoLoop:
 
     def _raise(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
         """Stop (and for a FAULT switch off) now; latch the alarm and report it to the monitor."""
-        self._stop_for(int(code), kind)
+        cut = self._stop_for(int(code), kind)
         if int(code) not in self.latches:
             latch = _Latch(Alarm(int(code), kind, description), self._cause_present(int(code)))
             self.latches[int(code)] = latch
             self._log.error("alarm %s %s: %s", format_code(code), kind.value, description)
             self._report(latch)
+        if cut is not None:  # after its cause, in the list too
+            self._not_completed(*cut)
 
-    def _stop_for(self, code: int, kind: AlarmType) -> None:
+    def _stop_for(self, code: int, kind: AlarmType) -> tuple[list[int], str] | None:
+        """Stop the arm for alarm ``code``; the motions it cut short and why (for 0x420), if any."""
+        why = f"alarm {format_code(code)} stopped the arm"
+        cut = None
         if self.interp.active:
-            self._not_completed(self.interp.discard(), f"alarm {format_code(code)} stopped the arm")
+            cut = self.interp.discard(), why
+        elif self._off_discarded is not None and time.monotonic() - self._off_discarded[1] <= OFF_FOR_ALARM:
+            cut = self._off_discarded[0], f"{why} (the servo was switched off for it first)"
+        self._off_discarded = None
         self.brake(before_limit=code == AlarmCode.SOFT_LIMIT_JOINT)
         if self.law.braking is None:  # already at rest: still, do not push on if blocked
             self._hold_where_it_is()
         if kind is AlarmType.FAULT and self.servo_on:
             self.servo_on = False
             self._log.warning("servo off after the %s fault", format_code(code))
+        return cut
 
     def _not_completed(self, motions: list[int], why: str) -> None:
         """The WARNING that accepted motions were discarded before their end (0x420)."""
@@ -449,7 +462,9 @@ class ServoLoop:
             if alarm.code not in before and alarm.code not in self.latches:
                 self._log.warning("alarm %s %s from the alarm monitor: stopping the arm (%s)",
                             format_code(alarm.code), alarm.type.value, alarm.description)
-                self._stop_for(alarm.code, alarm.type)
+                cut = self._stop_for(alarm.code, alarm.type)
+                if cut is not None:
+                    self._not_completed(*cut)
 
     def servo_on_now(self) -> str | None:
         """Servo on; returns why not, or None."""
@@ -465,8 +480,10 @@ class ServoLoop:
         return None
 
     def servo_off_now(self) -> None:
-        if self.interp.active:  # a client's request, not an alarm: said in the log only
-            self._log.warning("servo off: motions %s discarded before their end", self.interp.discard())
+        if self.interp.active:  # a client's request, not an alarm (unless one follows): said in the log
+            ids = self.interp.discard()
+            self._off_discarded = (ids, time.monotonic())
+            self._log.warning("servo off: motions %s discarded before their end", ids)
         if self.servo_on:
             self.servo_on = False
             self._log.info("servo off")
@@ -574,7 +591,10 @@ class ServoLoop:
             raise WireError("ratio", f"the speed override is 0 .. 100 %, got {ratio}")
 
         def apply() -> MotionReply:
+            moving = self.interp.active
             comment = self.interp.control(action, ratio / 100.0)
+            if action is MotionAction.ABORT and moving:
+                self.brake()  # off the path, within the limits: the law's controlled stop, not a dry FIFO
             if action is not MotionAction.OVERRIDE and not comment.startswith("OK: ignored"):
                 self._log.info("%s: %s", action.value, comment[4:])
             return MotionReply(0, comment, "", self._motion_progress())
