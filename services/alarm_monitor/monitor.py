@@ -188,6 +188,8 @@ class Monitor:
                 self._raised(report.alarm, f"reported by the {report.source}")
         self._drain_heartbeats(now)
         while (s := self._status.try_recv()) is not None:
+            # Working through a backlog (its CPU share was short for a while) is progress, not a hang.
+            self._pulse.beat()
             try:
                 self._on_status(decode_sample(messages.SERVO_STATUS, s))
             except WireError as exc:

@@ -2,8 +2,9 @@
 
 Needs CAP_SYS_NICE (or an RLIMIT_RTPRIO); without it the threads stay normal
 ones and the service says so once. Priorities of this project: servo clock 40 (its
-other threads 39), the launcher's router 35; the planner, the alarm monitor, the
-command and the client gateway run under the normal scheduler (``docs/timing.md``, "Real-time budget": every real-time
+other threads 39), the launcher's router 35, the planner 29 (its planning child
+normal); the alarm monitor, the command and the client gateway run under the
+normal scheduler (``docs/timing.md``, "Real-time budget": every real-time
 thread of the machine shares one budget, and the kernel stops them all once it is spent).
 """
 
