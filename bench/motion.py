@@ -357,7 +357,7 @@ def main() -> int:
     for line in collision_cost():
         print(line)
     sp, pp = free_port(), free_port()
-    servo = spawn(Service.SERVO, sp)
+    servo = spawn(Service.SERVO, sp, "--publish-targets")
     extra = ["--connect", f"tcp/127.0.0.1:{sp}"]
     early = ["--early-start-ms", str(args.early_start_ms)] if args.early_start_ms is not None else []
     planner = spawn(Service.PLANNER, pp, *extra, *early)

@@ -135,7 +135,8 @@ class ArmKeys:
         return f"{self.root}/Servo/posFeedback"
 
     @property
-    @_key('publisher', 'servo', '`TimedJointPos`, each cycle that follows a command, only while something subscribes',
+    @_key('publisher', 'servo', '`TimedJointPos`, each cycle that follows a command, only with the servo\'s '
+          '`--publish-targets` and while something subscribes',
           KeyEncoding.MSGPACK, Traffic.INFO)
     def pos_target(self) -> str:
         """``TimedJointPos``: the command the servo followed in a cycle (from its interpolator or the
@@ -235,13 +236,13 @@ class ArmKeys:
         return f"{self.root}/Planner/progress"
 
     @property
-    @_key('queryable (internal)', 'servo', '`Trajectory` → `MotionReply`', KeyEncoding.AS_REQUEST, Traffic.REPLY)
+    @_key('queryable (internal)', 'servo', '`Trajectory` → `MotionReply`', KeyEncoding.AS_REQUEST, Traffic.STREAM)
     def servo_trajectory(self) -> str:
         """Queryable of the servo: one accepted motion's joint samples into its interpolator (schema.motion)."""
         return f"{self.root}/Servo/trajectory"
 
     @property
-    @_key('queryable (internal)', 'servo', '`MotionControl` → `MotionReply`', KeyEncoding.AS_REQUEST, Traffic.REPLY)
+    @_key('queryable (internal)', 'servo', '`MotionControl` → `MotionReply`', KeyEncoding.AS_REQUEST, Traffic.STREAM)
     def servo_motion_control(self) -> str:
         """Queryable of the servo: pause, resume, stop, abort and the speed override (schema.motion)."""
         return f"{self.root}/Servo/motionControl"

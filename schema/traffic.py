@@ -30,7 +30,10 @@ class Traffic(enum.Enum):
     """The traffic classes, highest priority first."""
 
     #: A low-level client's position commands (``Servo/posCmd``): a lost one is a gap in the servo's
-    #: SyncFIFO, so it waits (towards the servo only: it never reaches a client as ``block``).
+    #: SyncFIFO, so it waits (towards the servo only: it never reaches a client as ``block``). And the
+    #: planner's hand-overs and controls (``Servo/trajectory``, ``Servo/motionControl``, queries of the
+    #: services only): a trajectory is up to ~200 kB, and dropped for a full queue it was lost whole
+    #: (the planner waited 2 s for its reply and refused the motion).
     STREAM = TrafficClass("real_time", "block", True,
                           "the arm's position commands: never lost, never behind anything")
     #: Evidence of health and alarms raised: a late heartbeat is a false "hung".

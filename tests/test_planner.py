@@ -259,7 +259,7 @@ class Rig:
 
 def start_rig(robot_name: str, servo_args: tuple[str, ...] = (), planner_args: tuple[str, ...] = ()) -> Iterator[Rig]:
     sp, pp = free_port(), free_port()
-    servo = Proc(service_argv(Service.SERVO, sp, "arm0", robot_name, *servo_args))
+    servo = Proc(service_argv(Service.SERVO, sp, "arm0", robot_name, "--publish-targets", *servo_args))
     planner = Proc(service_argv(Service.PLANNER, pp, "arm0", robot_name, "--connect", endpoint(sp), *planner_args))
     try:
         deadline = time.monotonic() + 30.0

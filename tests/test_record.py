@@ -417,7 +417,7 @@ def test_live_the_recording_holds_every_channel_with_its_schema_the_1khz_feedbac
         summary = make_reader(f).get_summary()
     assert summary is not None
     topics = {c.topic: c for c in summary.channels.values()}
-    for key in (k.pos_feedback, k.pos_target, k.servo_status, k.state, k.alarm, k.log(Service.SERVO),
+    for key in (k.pos_feedback, k.servo_status, k.state, k.alarm, k.log(Service.SERVO),
                 k.planner_progress, k.monitor_alarms, k.estop, k.trace(Interface.COMMON.value, OP.servoON),
                 k.trace(Interface.MIDDLE.value, OP.movePTPJointAbs),
                 k.trace(Interface.MIDDLE.value, OP.moveLinearCartesianRel),

@@ -166,8 +166,9 @@ class Handover:
         if reply.refusal == TrajectoryRefusal.STALE:
             log.info("%s: %s", motion.op, reply.comment)
             return None
-        if reply.id != ReturnCode.OK:
-            raise PlanRefused(ReturnCode.STATUS_ERR, f"the servo did not take it: {reply.comment}")
+        if reply.id != ReturnCode.OK:  # NOT_SV_ON_ERR for a servo off (its status said on a moment ago)
+            code = ReturnCode.NOT_SV_ON_ERR if reply.id == ReturnCode.NOT_SV_ON_ERR else ReturnCode.STATUS_ERR
+            raise PlanRefused(code, f"the servo did not take it: {reply.comment}")
         with self._lock:
             self._last_id, self._last = motion_id, buffered
             return motion_id, self._progress(time.time())

@@ -112,7 +112,8 @@ class ServoLoop:
 
     def __init__(self, model: RobotModel, session: zenoh.Session, keys: ArmKeys,
                  obstacles: tuple[Obstacle, ...] = (), pulse: Pulse | None = None,
-                 health: Health = SAME_HOST) -> None:
+                 health: Health = SAME_HOST, publish_targets: bool = False) -> None:
+        """``publish_targets``: ``Servo/posTarget`` while someone subscribes (the servo's ``--publish-targets``)."""
         self.model = model
         self.arm = keys.arm
         # Records name their arm: one servo process may run several (logs.ZenohLogHandler).
@@ -164,11 +165,12 @@ class ServoLoop:
         self._fb_matching = enter(self._fb_pub.publisher.declare_matching_listener(zenoh.handlers.FifoChannel(64)))
         self._fb_wanted = self._fb_pub.publisher.matching_status.matching
         self._fb_put = self._fb_pub.publisher.put  # every cycle: the labelled publisher's put, no wrapper call
-        # The applied target, every cycle too, only while someone subscribes (tests, recorders).
-        self._target_pub = enter(Publication(session, keys.pos_target, Encoding.MSGPACK))
-        self._target_matching = enter(self._target_pub.publisher.declare_matching_listener(
-            zenoh.handlers.FifoChannel(64)))
-        self._target_wanted = self._target_pub.publisher.matching_status.matching
+        # Opt-in: at 1 kHz beside the feedback it doubled what a JARA_ARM/** recorder takes, more than
+        # `jara-arm record` kept up with on a 2-core machine.
+        self._target_pub = enter(Publication(session, keys.pos_target, Encoding.MSGPACK)) if publish_targets else None
+        self._target_matching = (enter(self._target_pub.publisher.declare_matching_listener(
+            zenoh.handlers.FifoChannel(64))) if self._target_pub is not None else None)
+        self._target_wanted = self._target_pub is not None and self._target_pub.publisher.matching_status.matching
         self._status_pub = enter(Publication(session, keys.servo_status, Encoding.MSGPACK))
         self._motion_pub = enter(Publication(session, keys.servo_motion))
         self._health_pub = enter(Publication(session, keys.servo_health))
@@ -312,9 +314,10 @@ class ServoLoop:
             self._fb_wanted = matching.matching
         if self._fb_wanted:
             self._fb_put(messages.timed_joint_pos_payload(tm_ns, self._pos_list))
-        while (matching := self._target_matching.try_recv()) is not None:
-            self._target_wanted = matching.matching
-        if self._target_wanted and law.consumed != consumed:
+        if self._target_matching is not None:
+            while (matching := self._target_matching.try_recv()) is not None:
+                self._target_wanted = matching.matching
+        if self._target_wanted and law.consumed != consumed and self._target_pub is not None:
             self._target_pub.publisher.put(messages.timed_joint_pos_payload(tm_ns, law.q.tolist()))
         self._publish_motion()
         if self.latches:  # every cycle: the monitor learns at once that a cause has gone
@@ -574,8 +577,11 @@ class ServoLoop:
 
         def apply() -> MotionReply:
             law = self.law
-            if not self.servo_on or self.alarmed:
-                late, why = TrajectoryRefusal.STATE, "the servo is off" if not self.servo_on else "an alarm is active"
+            if not self.servo_on:
+                return MotionReply(int(ReturnCode.NOT_SV_ON_ERR), "the servo is off", TrajectoryRefusal.STATE.value,
+                                   self._motion_progress())
+            if self.alarmed:
+                late, why = TrajectoryRefusal.STATE, "an alarm is active"
             else:
                 at_rest = law.braking is None and not law.fifo and not (law.moving and self._from_client)
                 late, why = self.interp.submit(buffered, traj.epoch, traj.after, traj.splice, law.q, at_rest)

@@ -155,6 +155,10 @@ class ServoService(ArmService):
         parser.add_argument("--with-arm", type=arm_argument, action="append", metavar="ID:ROBOT",
                             help="another arm this process serves, on the same real-time clock thread "
                             "(repeatable; what `jara-arm up` does with several arms)")
+        parser.add_argument("--publish-targets", action="store_true",
+                            help="publish Servo/posTarget (the command followed each cycle, 1 kHz while the arm "
+                            "moves) while someone subscribes: for tests and benches; off, a JARA_ARM/** recorder "
+                            "takes the feedback alone")
         parser.add_argument("--obstacle", type=obstacle_argument, action="append", metavar="X,Y,Z,HX,HY,HZ",
                             help="a fixed box in the simulated world: centre and half extents [m] in the "
                             "world frame (repeatable; added to the robot model's own obstacles)")
@@ -171,7 +175,7 @@ class ServoService(ArmService):
         loops = []
         for arm, model in ctx.arms:
             loop = ServoLoop(model, ctx.session, ArmKeys(arm), obstacles,
-                             ctx.heartbeat(arm).pulse("the servo loop"), ctx.health)
+                             ctx.heartbeat(arm).pulse("the servo loop"), ctx.health, ctx.options.publish_targets)
             ctx.closing(loop.close)
             loops.append(loop)
         clock = ServoClock(loops, ctx.realtime_priority)
