@@ -44,14 +44,8 @@ class LocalServo:
                            tuple(self.q.tolist()))
 
     def progress(self) -> MotionProgress:
-        it = self.interp
         self.seq += 1
-        tail = it.tail(self.q)
-        running = it.running
-        return MotionProgress(Time.now(), it.epoch, running, tuple(b.motion for b in it.queue), it.head,
-                              it.last_done, it.last_discarded, it.paused, it.active and not it.holding, it.stopping,
-                              it.override * 100.0, it.scale, () if tail is None else tuple(tail.tolist()),
-                              self.started, self.seq)
+        return self.interp.progress(self.interp.state(self.q), self.started, self.seq)
 
     def ask_trajectory(self, traj: Trajectory) -> MotionReply:
         b = prepare(traj.motion, traj.rows(), traj.final, self.dt, self.max_accel)

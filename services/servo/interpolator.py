@@ -44,7 +44,8 @@ import math
 import numpy as np
 from ruckig import InputParameter, OutputParameter, Result, Ruckig
 
-from jara_arm.schema.motion import MotionAction, TrajectoryRefusal
+from jara_arm.schema.motion import MotionAction, MotionProgress, TrajectoryRefusal
+from jara_arm.schema.types import Time
 
 #: Fastest change of the scale [1/s]: 0 to 1 in 50 ms where the arm barely moves.
 RATE_MAX = 20.0
@@ -159,6 +160,20 @@ class Interpolator:
         if self.stopping or self.head:
             return None
         return self.queue[-1].q[-1] if self.queue else held
+
+    def state(self, held: np.ndarray) -> tuple[object, ...]:
+        """What ``Servo/motion`` says but its time and the scale (``held``: the target the servo holds):
+        a new value is a new ``seq``."""
+        tail = self.tail(held)
+        return (self.epoch, tuple(b.motion for b in self.queue), self.head, self.last_done, self.last_discarded,
+                self.paused, self.active and not self.holding, self.stopping, self.override,
+                () if tail is None else tuple(tail.tolist()))
+
+    def progress(self, state: tuple[object, ...], started: Time, seq: int) -> MotionProgress:
+        """``Servo/motion`` from :meth:`state`, of the servo process ``started``, numbered ``seq``."""
+        epoch, queued, head, done, discarded, paused, moving, stopping, override, tail = state
+        return MotionProgress(Time.now(), epoch, self.running, queued, head, done, discarded, paused,
+                              moving, stopping, override * 100.0, self.scale, tail, started, seq)
 
     # -- from the planner (called on the loop's thread, between cycles) ------------------
     def submit(self, traj: Buffered, epoch: int, after: int, splice: int, held: np.ndarray,
@@ -347,5 +362,4 @@ class Interpolator:
     def _time_to(self, target: float) -> float:
         """[s] for the scale to reach ``target`` from where it is (for the replies)."""
         rate = self.queue[0].rate if self.queue else RATE_MAX
-        v = max(abs(self._scale_v), 0.0)
-        return abs(self.scale - target) / rate + v / (rate / JERK_TIME) + JERK_TIME
+        return abs(self.scale - target) / rate + abs(self._scale_v) / (rate / JERK_TIME) + JERK_TIME

@@ -611,26 +611,18 @@ class ServoLoop:
         """The interpolator's progress (on the loop's thread: through :meth:`call`)."""
         return self._motion_progress()
 
-    def _motion_state(self) -> tuple[object, ...]:
-        it = self.interp
-        tail = it.tail(self.law.q)
-        return (it.epoch, tuple(b.motion for b in it.queue), it.head, it.last_done, it.last_discarded, it.paused,
-                it.active and not it.holding, it.stopping, it.override, () if tail is None else tuple(tail.tolist()))
-
     def _motion_progress(self) -> MotionProgress:
         """The interpolator now, numbered (``seq`` grows on every change but of tm and scale)."""
-        said = self._motion_state()
+        said = self.interp.state(self.law.q)
         if said != self._motion_said:
             self._motion_said = said
             self._motion_seq += 1
-        epoch, queued, head, done, discarded, paused, moving, stopping, override, tail = said
-        return MotionProgress(Time.now(), epoch, self.interp.running, queued, head, done, discarded, paused, moving,
-                              stopping, override * 100.0, self.interp.scale, tail, self._started, self._motion_seq)
+        return self.interp.progress(said, self._started, self._motion_seq)
 
     def _publish_motion(self) -> None:
         """``Servo/motion`` on every change, and every ``MOTION_EVERY``."""
         now = time.monotonic()
-        if self._motion_state() != self._motion_said or now - self._motion_at >= MOTION_EVERY:
+        if self.interp.state(self.law.q) != self._motion_said or now - self._motion_at >= MOTION_EVERY:
             self._motion_at = now
             self._motion_pub.put_message(MOTION_PROGRESS, self._motion_progress())
 
