@@ -209,3 +209,80 @@ def test_hold_forgets_the_stream():
     law.hold(here)
     assert np.array_equal(law.q, here) and not law.fifo and not law.moving and not law.interrupted
     assert not law.qd.any() and not law.qdd.any()
+
+
+# -- the screen: what the interpolator's targets may skip ---------------------------------------
+def _quintic(a: np.ndarray, b: np.ndarray, cycles: int) -> np.ndarray:
+    t = np.linspace(0.0, 1.0, cycles + 1)
+    s = 10 * t**3 - 15 * t**4 + 6 * t**5
+    return a + s[:, None] * (b - a)
+
+
+@pytest.mark.parametrize("model", [IIWA, PANDA], ids=["iiwa", "panda"])
+def test_screened_targets_pass_every_check(model):
+    """Seeded property: a law that takes the targets ``screen`` passed without checks applies exactly
+    what a law checking every target applies, and every target the full checks refuse was left to them
+    (random paths near, onto and past the soft limits, too fast ones, random overrides and pauses)."""
+    from jara_arm.schema.motion import MotionAction
+    from jara_arm.services.servo.interpolator import Interpolator, prepare
+
+    rng = np.random.default_rng(20261126)
+    dof, n = model.dof, model.axis_num
+    q0 = np.array(list(model.ready_pose) + ([model.gripper_limits.upper] if model.has_gripper else []))
+    hard = model.hard_limits
+    screened_cycles = refused = 0
+    for episode in range(25):
+        fast, full = ControlLaw(model, q0), ControlLaw(model, q0)
+        # Soft limits a little inside the hard ones, some of them around the path.
+        limits = tuple(LimitValue(upper=lim.upper - rng.uniform(0, 0.3) * (lim.upper - lim.lower) * 0.5,
+                                  lower=lim.lower + rng.uniform(0, 0.3) * (lim.upper - lim.lower) * 0.5)
+                       for lim in hard)
+        fast.soft_limits = full.soft_limits = limits
+        lower = np.array([lim.lower for lim in limits])
+        upper = np.array([lim.upper for lim in limits])
+        start = q0.copy()
+        start[:n] = np.clip(q0[:n], lower + 0.01, upper - 0.01)
+        fast.hold(start)
+        full.hold(start)
+        goal = start.copy()
+        # Goals inside, onto and past the limits; durations from comfortable to a jump.
+        goal[:n] = rng.uniform(lower - 0.1 * (upper - lower), upper + 0.1 * (upper - lower))
+        if model.has_gripper:
+            goal[n] = rng.uniform(model.gripper_limits.lower - 0.01, model.gripper_limits.upper + 0.01)
+        span = float(np.max(np.abs(goal - start)[:n] / np.array(model.rated_speed)))
+        cycles = max(3, int(span / DT * rng.choice([0.3, 1.0, 1.5, 3.0])))
+        rows = _quintic(start, goal, cycles)
+        if rng.random() < 0.3:  # a jump in the middle: the segments on both sides of it
+            j = int(rng.integers(2, min(len(rows) - 1, 300)))
+            rows[j:, :n] += rng.choice([-1.0, 1.0]) * 1.5 * np.array(model.rated_speed) * DT
+        b = prepare(1, rows, True, DT, fast.max_accel)
+        b.screen(*fast.screen(b.q))
+        it = Interpolator(dof, DT)
+        assert it.submit(b, it.epoch, 0, -1, fast.q, True)[0] is None
+        k = 0
+        while it.active and k < 1500:  # the first 1.5 s of each: where limits and jumps show
+            if rng.random() < 0.01:
+                it.control(MotionAction.OVERRIDE, float(rng.uniform(0.2, 1.0)))
+            elif rng.random() < 0.003:
+                it.control(MotionAction.PAUSE if not it.paused else MotionAction.RESUME, 1.0)
+            elif it.holding:
+                it.control(MotionAction.RESUME, 1.0)
+                continue
+            target = it.next()
+            k += 1
+            screened = it.screened
+            fast.fifo.append(target.copy())
+            full.fifo.append(target.copy())
+            a, c = fast.advance(True, screened), full.advance(True)
+            if screened is not None:
+                screened_cycles += 1
+                assert a is None and c is None, (episode, k, c)
+                np.testing.assert_allclose(fast.q, full.q, atol=0, rtol=0)
+                np.testing.assert_allclose(fast.qd, full.qd, rtol=1e-12, atol=1e-12)
+            if isinstance(c, Refusal):
+                refused += 1
+                break
+            assert a is None or isinstance(a, Refusal)
+            np.testing.assert_array_equal(fast.q, full.q)
+    # The property is not empty: both sides happened.
+    assert screened_cycles > 5_000 and refused >= 5, (screened_cycles, refused)

@@ -125,20 +125,61 @@ class ControlLaw:
         # Kept as arrays too: every command is checked against them.
         self._soft_lower = np.array([lim.lower for lim in limits])
         self._soft_upper = np.array([lim.upper for lim in limits])
-        self._soft_limits = limits
         # The same bounds for a whole command; the gripper axis is clamped, not checked.
         free = [np.inf] * (self.model.dof - len(limits))
         self._cmd_lower = np.array([lim.lower for lim in limits] + [-x for x in free])
         self._cmd_upper = np.array([lim.upper for lim in limits] + free)
+        # For screen(): the gripper axis inside its hard limits, so that no clamp is left to do.
+        grip = [self._hard[i] for i in range(len(limits), self.model.dof)]
+        self._screen_lower = np.array([lim.lower for lim in limits] + [g.lower for g in grip])
+        self._screen_upper = np.array([lim.upper for lim in limits] + [g.upper for g in grip])
+        # Last: screen() runs on another thread and tags its verdict with the limits it read first.
+        self._soft_limits = limits
+
+    # -- off the real-time path -----------------------------------------------------------
+    def screen(self, q: np.ndarray) -> tuple[np.ndarray, tuple[LimitValue, ...]]:
+        """Which segments of samples ``q`` (N, dof) [rad or m], run at the servo cycle, need no
+        check in the cycle, and the soft limits this holds for.
+
+        Segment i (samples i to i+1) passes when any target a cycle can take in it,
+        run at a time scale of at most 1 (``interpolator.py``), would pass every check
+        of :meth:`follow` from the target of the cycle before: both samples inside the
+        soft limits (the gripper inside its hard limits: nothing to clamp), a step of
+        at most ``max(|q[i] - q[i-1]|, |q[i+1] - q[i]|)`` within the jump bound, and
+        the cheap stopping-distance bound of :meth:`overruns_soft_limit` at that speed
+        clear of both limits. Segment 0 never passes: the cycle before may have been
+        anywhere (rest, another motion's end). A NaN fails every comparison.
+        The exact check (Ruckig) stays in the cycle for the segments near a limit.
+        """
+        limits = self._soft_limits
+        if len(q) < 3:
+            return np.zeros(max(0, len(q) - 1), dtype=bool), limits
+        seg = np.abs(np.diff(q, axis=0))  # (N-1, dof)
+        step = seg.copy()
+        step[1:] = np.maximum(seg[:-1], seg[1:])
+        ok = (step <= self._step_max).all(axis=1)
+        inside = ((q >= self._screen_lower) & (q <= self._screen_upper)).all(axis=1)
+        ok &= inside[:-1] & inside[1:]
+        n = self.model.axis_num
+        va = step[:, :n] * self._per_cycle + self._reach_at
+        reach = va * (va * self._reach_half_inv_a + 2 * BRAKE_JERK_TIME)
+        high = np.maximum(q[:-1, :n], q[1:, :n]) + reach
+        low = np.minimum(q[:-1, :n], q[1:, :n]) - reach
+        ok &= ((high <= self._soft_upper) & (low >= self._soft_lower)).all(axis=1)
+        ok[0] = False
+        return ok, limits
 
     # -- each cycle ---------------------------------------------------------------------
-    def advance(self, enabled: bool) -> Refusal | str | None:
+    def advance(self, enabled: bool, screened: object = None) -> Refusal | str | None:
         """Choose this cycle's target: go on stopping, follow the FIFO, or hold.
 
         ``enabled``: the servo is on and no alarm is active (otherwise the FIFO is
-        not followed). Returns a :class:`Refusal` (the FIFO's next command was not
-        applied; the caller raises its alarm, which stops the arm), :data:`RAN_DRY`
-        (a controlled stop began), :data:`STOPPED` (a stop ended) or None.
+        not followed). ``screened``: the soft limits the FIFO's next command passed
+        :meth:`screen` against (the interpolator's), None if it did not; it is taken
+        without the checks while they are still the limits in force. Returns a
+        :class:`Refusal` (the FIFO's next command was not applied; the caller raises
+        its alarm, which stops the arm), :data:`RAN_DRY` (a controlled stop began),
+        :data:`STOPPED` (a stop ended) or None.
         """
         if self.braking is not None:
             q, self.qd, self.qdd, done = self.braking.next()
@@ -150,7 +191,14 @@ class ControlLaw:
             return None
         if enabled and self.fifo:
             self.consumed += 1
-            return self.follow(self.fifo.popleft())
+            cmd = self.fifo.popleft()
+            if screened is not None and screened is self._soft_limits and not self.interrupted:
+                qd = (cmd - self.q) * self._per_cycle
+                self.qdd = (qd - self.qd) * self._per_cycle
+                self.q, self.qd = cmd, qd
+                self.moving = True
+                return None
+            return self.follow(cmd)
         if self.moving and enabled and np.any(np.abs(self.qd) > REST_SPEED):
             self.interrupted = True
             self.brake()

@@ -71,10 +71,24 @@ class Buffered:
     final: bool
     rate: float  # [1/s] fastest change of the scale along it
     full: np.ndarray | None = None  # the samples before a splice cut them (restored if the splice is discarded)
+    #: Per segment (samples i to i+1): every target a cycle can take in it passes the control law's
+    #: checks against the soft limits ``limits`` (``ControlLaw.screen``); None: not screened.
+    screened: np.ndarray | None = None
+    limits: object = None
+    full_screened: np.ndarray | None = None
 
     @property
     def end(self) -> int:
         return len(self.q) - 1
+
+    def screen(self, screened: np.ndarray, limits: object) -> None:
+        """Attach ``ControlLaw.screen``'s verdict (off the real-time path, before :meth:`Interpolator.submit`)."""
+        self.screened, self.limits = screened, limits
+
+    def screened_at(self, i: int) -> object:
+        """The limits segment ``i`` was screened against, or None if a cycle in it needs every check."""
+        s = self.screened
+        return self.limits if s is not None and 0 <= i < len(s) and s[i] else None
 
 
 def scale_rate(q: np.ndarray, dt: float, max_accel: np.ndarray) -> float:
@@ -124,6 +138,11 @@ class Interpolator:
         self.last_discarded = 0
         self.ran_out = 0  # cycles a head held at its last sample, waiting for its rest
         self.done: list[int] = []  # motions completed since the caller last emptied it
+        #: The soft limits the target :meth:`next` gave last was screened against (``Buffered.screen``),
+        #: or None: the control law checks it in full.
+        self.screened: object = None
+        self._state_key: tuple[object, ...] = ()
+        self._state: tuple[object, ...] = ()
         self._otg = Ruckig(1, dt)
         self._inp = InputParameter(1)
         self._out = OutputParameter(1)
@@ -164,10 +183,18 @@ class Interpolator:
     def state(self, held: np.ndarray) -> tuple[object, ...]:
         """What ``Servo/motion`` says but its time and the scale (``held``: the target the servo holds):
         a new value is a new ``seq``."""
+        queue = self.queue
+        # Every cycle: built again only when what it is made of changed (a splice replaces q).
+        key = (self.epoch, len(queue), id(queue[-1].q) if queue else id(held), queue[-1].final if queue else True,
+               self.last_done, self.last_discarded, self.paused, self.holding, self.stopping, self.override)
+        if key == self._state_key:
+            return self._state
         tail = self.tail(held)
-        return (self.epoch, tuple(b.motion for b in self.queue), self.head, self.last_done, self.last_discarded,
-                self.paused, self.active and not self.holding, self.stopping, self.override,
-                () if tail is None else tuple(tail.tolist()))
+        self._state_key = key
+        self._state = (self.epoch, tuple(b.motion for b in queue), self.head, self.last_done, self.last_discarded,
+                       self.paused, self.active and not self.holding, self.stopping, self.override,
+                       () if tail is None else tuple(tail.tolist()))
+        return self._state
 
     def progress(self, state: tuple[object, ...], started: Time, seq: int) -> MotionProgress:
         """``Servo/motion`` from :meth:`state`, of the servo process ``started``, numbered ``seq``."""
@@ -215,11 +242,18 @@ class Interpolator:
         if traj.motion == last.motion:  # the rest of a head
             last.q = np.concatenate([last.q[:k], traj.q])
             last.final, last.rate, last.full = traj.final, min(last.rate, traj.rate), None
+            if last.screened is not None and traj.screened is not None and traj.limits is last.limits and k >= 1:
+                # The segment into the joint ends on the rest's first sample, not the head's: checked in full.
+                last.screened = np.concatenate([last.screened[:k - 1], [False], traj.screened])
+            else:
+                last.screened = None
             return None, "joined to its head"
         if not last.final:
             return TrajectoryRefusal.STATE, f"motion {last.motion} is a head still waiting for its rest"
         if k < last.end:
             last.full, last.q = last.q, last.q[:k + 1]
+            last.full_screened = last.screened
+            last.screened = None if last.screened is None else last.screened[:k]
         self.queue.append(traj)
         return None, "buffered" if splice < 0 else f"spliced into motion {last.motion} at sample {k}"
 
@@ -258,6 +292,7 @@ class Interpolator:
             first = self.queue[0]
             if first.full is not None:
                 first.q, first.full = first.full, None
+                first.screened, first.full_screened = first.full_screened, None
             if dropped:
                 self.last_discarded = max(self.last_discarded, max(dropped))
             self.stopping, self.paused = True, False
@@ -300,12 +335,14 @@ class Interpolator:
                 if self.stopping:
                     self._stopped()
                 self.tau = 0.0
+                self.screened = cur.screened_at(cur.end - 1)  # the end of the last segment
                 return cur.q[-1].copy()
             tau -= cur.end
             self.queue.popleft()
             self._completed(cur)
             cur = self.queue[0]
         self.tau = tau
+        self.screened = cur.screened_at(min(int(tau), cur.end - 1))
         if self.stopping and self.scale == 0.0 and self._scale_v == 0.0:
             q = self._at(cur, tau)
             ids = [b.motion for b in self.queue]

@@ -77,6 +77,9 @@ LIMIT_TOLERANCE = 1e-3
 #: A latch the alarm monitor has not listed yet is reported again this often [s]
 #: (the monitor was down or restarted and lost it).
 REPORT_AGAIN = 0.5
+#: The alarm monitor's token and heartbeat are looked at, and ``Monitor/copy`` answered, every
+#: this many cycles [cycles]: 10 ms against a hung bound of 1.5 s, a twentieth of a busy arm's cycle.
+WATCH_EVERY = 10
 #: ``Servo/motion`` at least this often [s], and at once on every change.
 MOTION_EVERY = 0.1
 #: Motions a servoOFF discarded are taken as discarded by an alarm that arrives this soon after it [s]:
@@ -144,6 +147,7 @@ class ServoLoop:
         self._late_cycles = 0  # consecutive cycles waited for a command mid-motion
         self._still_for = 0  # consecutive cycles at rest (see SETTLED_CYCLES)
         self._status_k = -STATUS_EVERY_AT_REST  # cycle of the last ServoStatus
+        self._watch_phase = 0  # cycles k % WATCH_EVERY == this watch the alarm monitor
         self._status_said: tuple[object, ...] = ()  # what it said besides the measured values
         self._status_q: np.ndarray | None = None  # the target it said
         self._vel_list: list[float] = vel.tolist()
@@ -226,6 +230,7 @@ class ServoLoop:
         self._tm_ns = deadline_wall_ns - self._period_ns
         self._window_start = time.monotonic() - phase * HEALTH_EVERY
         self._status_k = -STATUS_EVERY_AT_REST + int(phase * STATUS_EVERY)
+        self._watch_phase = int(phase * WATCH_EVERY)
 
     def tick(self, deadline_wall_ns: int, deadline_ns: int, behind: bool) -> bool:
         """This arm's cycle due at ``deadline_ns`` (monotonic) / ``deadline_wall_ns`` (wall);
@@ -267,8 +272,9 @@ class ServoLoop:
                 self.adopt_monitor_list(decode_sample(ALARM_LIST, sample))
             except WireError as exc:
                 self._log.error("ignored a malformed alarm list from the monitor: %s", exc)
-        self._alarm_copy.answer(self._alarm_list_held)
-        self._watch_monitor()
+        if k % WATCH_EVERY == self._watch_phase:
+            self._alarm_copy.answer(self._alarm_list_held)
+            self._watch_monitor()
         while self._calls:
             fn, fut = self._calls.popleft()
             try:
@@ -278,9 +284,11 @@ class ServoLoop:
         self._take_commands()
         law = self.law
         interp = self.interp
+        screened = None
         if interp.active and law.braking is None and not interp.holding:
             ran_out = interp.ran_out
             law.fifo.appendleft(interp.next())  # ahead of any client's: it is the one that runs
+            screened = interp.screened
             self._from_client = False
             if interp.ran_out != ran_out:  # the cap should prevent it: worth knowing when it does not
                 self._log.warning("the early start's head of motion %d held at its last sample: its rest "
@@ -294,7 +302,7 @@ class ServoLoop:
         else:
             self._late_cycles = 0
         consumed = law.consumed
-        self._advance()
+        self._advance(screened)
         if interp.done:
             self._log.debug("motions %s done", interp.done)
             interp.done.clear()
@@ -348,10 +356,11 @@ class ServoLoop:
             self.law.fifo.append(np.array(msg.pos))
             self._from_client = True
 
-    def _advance(self) -> None:
-        """Choose this cycle's target (the control law) and act on what it says."""
+    def _advance(self, screened: object = None) -> None:
+        """Choose this cycle's target (the control law; ``screened``: see ``ControlLaw.advance``)
+        and act on what it says."""
         law = self.law
-        outcome = law.advance(self.servo_on and not self.alarmed)
+        outcome = law.advance(self.servo_on and not self.alarmed, screened)
         if isinstance(outcome, Refusal):
             self._raise(outcome.code, outcome.kind, outcome.description)
             if law.braking is not None:  # the stop starts this cycle, not one cycle later
@@ -574,6 +583,7 @@ class ServoLoop:
         if traj.dof != self.model.dof:
             raise WireError("dof", f"the arm has {self.model.dof} axes (gripper included), got {traj.dof}")
         buffered = prepare(traj.motion, rows, traj.final, self.dt, self.law.max_accel)  # here, not in the cycle
+        buffered.screen(*self.law.screen(buffered.q))
 
         def apply() -> MotionReply:
             law = self.law

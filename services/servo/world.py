@@ -43,6 +43,7 @@ class World:
         # Wire axis k drives these PyBullet joints (the gripper axis drives all fingers).
         self._joints = self._arm + self._grip
         self._axis_of_joint = np.array(list(range(model.axis_num)) + [model.axis_num] * len(self._grip))
+        self._one_joint_per_axis = len(self._grip) <= 1  # then command() needs no indexing
         self._position_gains = [POSITION_GAIN] * len(self._joints)
         self._velocity_gains = [VELOCITY_GAIN] * len(self._joints)
         self._measured = self._arm + self._grip[:1]  # one joint per wire axis
@@ -72,10 +73,14 @@ class World:
 
     def command(self, q: np.ndarray, qd: np.ndarray) -> None:
         """Position target [rad or m] and its velocity [rad/s or m/s], one per wire axis."""
-        k = self._axis_of_joint
+        if self._one_joint_per_axis:
+            positions, velocities = q.tolist(), qd.tolist()
+        else:
+            k = self._axis_of_joint
+            positions, velocities = q[k].tolist(), qd[k].tolist()
         pybullet.setJointMotorControlArray(
             self.robot, self._joints, pybullet.POSITION_CONTROL,
-            targetPositions=q[k].tolist(), targetVelocities=qd[k].tolist(),
+            targetPositions=positions, targetVelocities=velocities,
             forces=self._forces, positionGains=self._position_gains,
             velocityGains=self._velocity_gains, physicsClientId=self._pb)
 
