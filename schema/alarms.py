@@ -131,6 +131,9 @@ class Heartbeat:
     stuck: tuple[str, ...] = wire(w.SeqType("StringSeq", w.STRING), doc="a line per loop that missed its deadline")
     leaving: bool = wire(w.BOOLEAN, doc="the last beat of a service shutting down in order: its token "
                          "goes next, and that is not a loss", default=False)
+    pid: int = wire(w.ULONG, doc="the service's process id (0: not said)", default=0)
+    host: str = wire(w.STRING, doc="its host's boot id and PID namespace: a watcher with the same one may "
+                     "ask this host's kernel whether a silent service is stopped or starved", default="")
 
 
 @dataclasses.dataclass(frozen=True)

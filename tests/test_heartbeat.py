@@ -124,3 +124,91 @@ def test_a_watch_forgives_a_service_that_said_it_leaves():
     assert watch.token(False, now=2.1) and watch.leaving  # gone, as announced
     watch.token(True, now=3.0)  # a new process of it
     assert not watch.leaving
+
+
+# -- starved or hung: the evidence of this host's kernel (services/runtime/starvation.py) ------------
+def _child(code: str) -> "subprocess.Popen[bytes]":
+    import subprocess
+    import sys
+    return subprocess.Popen([sys.executable, "-c", code])
+
+
+def _watch_of(pid: int, host: str | None = None):
+    from jara_arm.services.runtime.heartbeat import ServiceWatch
+    from jara_arm.services.runtime.starvation import THIS_HOST
+
+    watch = ServiceWatch(Service.PLANNER, Health("test", 0.05, 0.1, 0.3, 1.0))
+    watch.token(True, now=time.monotonic())
+    watch.heard(time.monotonic(), pid=pid, host=THIS_HOST if host is None else host)
+    return watch
+
+
+def _judged_after(watch, seconds: float) -> bool:
+    """Ask ``watch.hung`` every 10 ms for ``seconds`` of real time (the watcher's own cadence),
+    as the kernel's counters only move in real time; the last verdict."""
+    end = time.monotonic() + seconds
+    hung = False
+    while time.monotonic() < end:
+        hung = watch.hung(time.monotonic())
+        time.sleep(0.01)
+    return hung
+
+
+def test_a_silent_sleeping_process_is_hung_at_the_bound():
+    """Silent, runnable never (a deadlock, a blocked call): hung once silent past the bound, as before."""
+    child = _child("import time; time.sleep(30)")
+    try:
+        watch = _watch_of(child.pid)
+        assert _judged_after(watch, 0.8)
+        assert "neither ran nor waited for a CPU" in watch.why_hung(time.monotonic())
+    finally:
+        child.kill()
+        child.wait()
+
+
+def test_a_stopped_process_is_hung_at_the_bound_and_named_stopped():
+    import signal
+
+    child = _child("import time; time.sleep(30)")
+    try:
+        watch = _watch_of(child.pid)
+        child.send_signal(signal.SIGSTOP)
+        assert _judged_after(watch, 0.5)
+        assert "stopped (SIGSTOP" in watch.why_hung(time.monotonic())
+    finally:
+        child.kill()
+        child.wait()
+
+
+def test_a_starved_process_is_not_hung_until_starved_max(monkeypatch):
+    """Three busy processes on one core: each waits for the CPU two thirds of the time. Silent past
+    the bound, the watched one is starved, not hung (and said so once); past STARVED_MAX it is hung."""
+    import os
+
+    from jara_arm.services.runtime import heartbeat, starvation
+
+    monkeypatch.setattr(heartbeat, "STARVED_MAX", 1.2)  # the real 5 s, shortened for the test
+    spin = "import os, time; os.sched_setaffinity(0, {0}); end = time.monotonic() + 10\nwhile time.monotonic() < end: pass"
+    children = [_child(spin) for _ in range(3)]
+    try:
+        wait_until(lambda: all(os.sched_getaffinity(c.pid) == {0} for c in children), timeout=5)
+        watch = _watch_of(children[0].pid)
+        assert not _judged_after(watch, 0.8)  # past the 0.3 s bound: starved
+        line = watch.starved_line(time.monotonic())
+        assert line is not None and "starved of the CPU" in line and watch.starved_line(time.monotonic()) is None
+        assert _judged_after(watch, 0.6)  # silent past STARVED_MAX (1.2 s here): hung all the same
+        assert "starved" in watch.why_hung(time.monotonic())
+    finally:
+        for c in children:
+            c.kill()
+            c.wait()
+    assert starvation.STARVED_MAX == 5.0
+
+
+def test_a_beat_from_another_host_gives_no_evidence():
+    """Another host's pid means nothing here: silence past the bound is hung, as before."""
+    import os
+
+    watch = _watch_of(os.getpid(), host="another-boot-id/pid:[1]")
+    assert watch.pid == 0
+    assert _judged_after(watch, 0.5)
