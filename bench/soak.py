@@ -195,6 +195,7 @@ def main() -> int:
     alarms: list[str] = []
     stalls: collections.Counter[str] = collections.Counter()  # silences logged by the arm's watchers
     longest: collections.Counter[str] = collections.Counter()  # [ms] the longest of them
+    longest_line: dict[str, str] = {}  # its log line
     warnings: list[str] = []
     hogs: list[multiprocessing.Process] = []
     ctx = multiprocessing.get_context("spawn")
@@ -222,7 +223,9 @@ def main() -> int:
                 if (m := _SILENCE.search(line)) is not None:
                     arm = arm_of(str(s.key_expr))
                     stalls[arm] += 1
-                    longest[arm] = max(longest[arm], int(m.group(1)))
+                    if int(m.group(1)) > longest[arm]:
+                        longest[arm] = int(m.group(1))
+                        longest_line[arm] = line
 
         # Callbacks only append to lists: no work, no blocking.
         subs = [session.declare_subscriber(any_arm_alarm(), on_alarm),
@@ -297,6 +300,8 @@ def main() -> int:
     for a, t in tallies.items():
         for line in t.refused[:10]:
             print(f"  refused ({a}): {line}")
+    for a in sorted(longest_line):
+        print(f"  longest stall ({a}): {longest_line[a]}")
     print(f"warnings logged: {len(warnings)}")
     for line in warnings[:30]:
         print("  " + line)

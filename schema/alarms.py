@@ -134,6 +134,7 @@ class Heartbeat:
     pid: int = wire(w.ULONG, doc="the service's process id (0: not said)", default=0)
     host: str = wire(w.STRING, doc="its host's boot id and PID namespace: a watcher with the same one may "
                      "ask this host's kernel whether a silent service is stopped or starved", default="")
+    tid: int = wire(w.ULONG, doc="the heartbeat thread's id (0: not said)", default=0)
 
 
 @dataclasses.dataclass(frozen=True)

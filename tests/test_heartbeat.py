@@ -139,7 +139,8 @@ def _watch_of(pid: int, host: str | None = None):
 
     watch = ServiceWatch(Service.PLANNER, Health("test", 0.05, 0.1, 0.3, 1.0))
     watch.token(True, now=time.monotonic())
-    watch.heard(time.monotonic(), pid=pid, host=THIS_HOST if host is None else host)
+    # A child's main thread, as its heartbeat thread: its id is the process's.
+    watch.heard(time.monotonic(), pid=pid, host=THIS_HOST if host is None else host, tid=pid)
     return watch
 
 
@@ -155,12 +156,14 @@ def _judged_after(watch, seconds: float) -> bool:
 
 
 def test_a_silent_sleeping_process_is_hung_at_the_bound():
-    """Silent, runnable never (a deadlock, a blocked call): hung once silent past the bound, as before."""
+    """Silent, its heartbeat thread neither runs nor waits (a deadlock, a blocked call): hung once silent
+    past the bound, as before."""
     child = _child("import time; time.sleep(30)")
     try:
         watch = _watch_of(child.pid)
         assert _judged_after(watch, 0.8)
         assert "neither ran nor waited for a CPU" in watch.why_hung(time.monotonic())
+        assert watch.evidence_line(time.monotonic()) is None
     finally:
         child.kill()
         child.wait()
@@ -194,8 +197,8 @@ def test_a_starved_process_is_not_hung_until_starved_max(monkeypatch):
         wait_until(lambda: all(os.sched_getaffinity(c.pid) == {0} for c in children), timeout=5)
         watch = _watch_of(children[0].pid)
         assert not _judged_after(watch, 0.8)  # past the 0.3 s bound: starved
-        line = watch.starved_line(time.monotonic())
-        assert line is not None and "starved of the CPU" in line and watch.starved_line(time.monotonic()) is None
+        line = watch.evidence_line(time.monotonic())
+        assert line is not None and "starved of the CPU" in line and watch.evidence_line(time.monotonic()) is None
         assert _judged_after(watch, 0.6)  # silent past STARVED_MAX (1.2 s here): hung all the same
         assert "starved" in watch.why_hung(time.monotonic())
     finally:
@@ -203,6 +206,25 @@ def test_a_starved_process_is_not_hung_until_starved_max(monkeypatch):
             c.kill()
             c.wait()
     assert starvation.STARVED_MAX == 5.0
+
+
+def test_a_process_that_beats_unheard_is_not_hung_until_starved_max(monkeypatch):
+    """Its heartbeat thread runs every period and nothing arrives (the link or the watcher's reception
+    stalls): not hung, said once; past STARVED_MAX hung all the same."""
+    from jara_arm.services.runtime import heartbeat
+
+    monkeypatch.setattr(heartbeat, "STARVED_MAX", 1.2)
+    child = _child("import time\nwhile True: time.sleep(0.02)")
+    try:
+        watch = _watch_of(child.pid)
+        assert not _judged_after(watch, 0.8)
+        line = watch.evidence_line(time.monotonic())
+        assert line is not None and "its beats do not arrive" in line
+        assert _judged_after(watch, 0.6)
+        assert "its beats did not arrive" in watch.why_hung(time.monotonic())
+    finally:
+        child.kill()
+        child.wait()
 
 
 def test_a_beat_from_another_host_gives_no_evidence():

@@ -252,7 +252,7 @@ class Monitor:
             except WireError as exc:
                 log.error("ignored a malformed heartbeat of the %s: %s", name, exc)
                 continue
-            gap = watch.heard(now, beat.stuck, beat.leaving, beat.pid, beat.host)
+            gap = watch.heard(now, beat.stuck, beat.leaving, beat.pid, beat.host, beat.tid)
             if gap is not None:
                 log.warning(watch.stall_line(gap))
 
@@ -260,7 +260,7 @@ class Monitor:
         for service, watch in self.watches.items():
             code = HUNG_CODE[service]
             if code in self.book or not watch.hung(now):
-                if (line := watch.starved_line(now)) is not None:
+                if (line := watch.evidence_line(now)) is not None:
                     log.warning(line)
                 continue
             why = watch.why_hung(now)

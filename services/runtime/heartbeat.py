@@ -36,7 +36,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 
 from .entities import Entities
 from .realtime import realtime_thread
-from .starvation import EVIDENCE_WINDOW, STARVED_MAX, STARVED_SHARE, THIS_HOST, process_sched
+from .starvation import BEATING_SHARE, EVIDENCE_WINDOW, STARVED_MAX, STARVED_SHARE, THIS_HOST, ThreadSched, thread_sched
 from .timing import SAME_HOST, Health
 from .wire import Publication
 
@@ -101,7 +101,8 @@ class Heartbeat:
             return
         self._left = True
         try:
-            self._pub.put_message(HEARTBEAT, alarms.Heartbeat(self._seq, (), True, os.getpid(), THIS_HOST))
+            self._pub.put_message(HEARTBEAT, alarms.Heartbeat(self._seq, (), True, os.getpid(), THIS_HOST,
+                                                              self._thread.native_id or 0))
         except zenoh.ZError as exc:
             log.debug("leaving beat not sent: %s", exc)
             return
@@ -124,7 +125,7 @@ class Heartbeat:
 
     def _run(self) -> None:
         realtime_thread(self._priority, f"{self.service.value} heartbeat")
-        pid = os.getpid()
+        pid, tid = os.getpid(), threading.get_native_id()
         last = steady_since = time.monotonic()
         due = last
         while True:
@@ -139,7 +140,7 @@ class Heartbeat:
                 steady_since = now
             last = now
             try:
-                beat = alarms.Heartbeat(self._seq, self.stuck(now, steady_since), False, pid, THIS_HOST)
+                beat = alarms.Heartbeat(self._seq, self.stuck(now, steady_since), False, pid, THIS_HOST, tid)
                 self._pub.put_message(HEARTBEAT, beat)
             except zenoh.ZError as exc:  # the session is closing
                 log.debug("heartbeat not sent: %s", exc)
@@ -161,12 +162,14 @@ class ServiceWatch:
     stuck: tuple[str, ...] = ()  # the newest heartbeat's stuck loops
     leaving: bool = False  # its newest heartbeat said it shuts down in order
     stalls: int = 0  # silences longer than health.stall_after that ended (the service beat again)
-    pid: int = 0  # its process, if its heartbeat says it runs on this host (starvation.THIS_HOST)
-    # During a silence (starvation.py): (time [s], run delay [s]) when it passed stall_after, the
-    # newest verdict (time [s], starved, stopped), and whether the starved verdict was logged.
-    _base: tuple[float, float] | None = None
-    _verdict: tuple[float, bool, bool] | None = None
-    _starved_said: bool = False
+    pid: int = 0  # its process and heartbeat thread, if its heartbeat says it runs on this host
+    tid: int = 0
+    # During a silence (starvation.py): the heartbeat thread when the silence passed stall_after
+    # (time [s], its counters), the newest verdict (time [s], verdict: "hung", "starved", "beating"
+    # or "stopped") and whether a verdict other than hung was logged.
+    _base: tuple[float, ThreadSched] | None = None
+    _verdict: tuple[float, str] | None = None
+    _said: bool = False
 
     def token(self, up: bool, now: float) -> bool:
         """A liveliness change; True if the service was alive and is now gone (``leaving`` says
@@ -180,16 +183,17 @@ class ServiceWatch:
         return was and not up
 
     def heard(self, now: float, stuck: tuple[str, ...] = (), leaving: bool = False, pid: int = 0,
-              host: str = "") -> float | None:
-        """A heartbeat arrived at ``now`` (from process ``pid`` of ``host``, if it says); returns the
-        silence it ended [s] if that was a stall."""
+              host: str = "", tid: int = 0) -> float | None:
+        """A heartbeat arrived at ``now`` (from thread ``tid`` of process ``pid`` of ``host``, if it
+        says); returns the silence it ended [s] if that was a stall."""
         gap = now - self.heard_at if self.heard_at >= self.up_at else 0.0
         self.heard_at = now
         self.stuck = stuck
         self.leaving = leaving
-        self.pid = pid if host and host == THIS_HOST else 0
+        local = bool(host) and host == THIS_HOST and pid > 0 and tid > 0
+        self.pid, self.tid = (pid, tid) if local else (0, 0)
         self._base = self._verdict = None
-        self._starved_said = False
+        self._said = False
         if gap > self.health.stall_after:
             self.stalls += 1
             return gap
@@ -206,47 +210,56 @@ class ServiceWatch:
         return self.health.hung_after if settled else max(self.health.hung_after, self.health.first_beat_grace)
 
     def stale(self, now: float) -> bool:
-        """Token up, heartbeat silent for longer than :meth:`limit`, and not starved of the CPU on
-        the evidence of this host's kernel (``starvation.py``) for less than ``STARVED_MAX``."""
+        """Token up, heartbeat silent for longer than :meth:`limit`, unless this host's kernel shows it
+        starved or beating unheard (``starvation.py``) and the silence is shorter than ``STARVED_MAX``."""
         if not self.alive:
             return False
         silence = self.silence(now)
         if silence <= self.limit():
             if self.pid and silence > self.health.stall_after and self._base is None:
-                sched = process_sched(self.pid)
-                self._base = (now, sched.run_delay) if sched is not None else None
+                sched = thread_sched(self.pid, self.tid)
+                self._base = (now, sched) if sched is not None else None
             return False
-        return not self.pid or silence > max(STARVED_MAX, self.limit()) or not self.starved(now)
+        return not self.pid or silence > max(STARVED_MAX, self.limit()) or self.verdict(now) in ("hung", "stopped")
 
-    def starved(self, now: float) -> bool:
-        """During a silence: its process is runnable and waits for a CPU (see ``starvation.py``);
-        False if it is stopped, sleeps, is gone or is not on this host."""
+    def verdict(self, now: float) -> str:
+        """During a silence: "stopped", "starved", "beating" (unheard) or "hung" (see ``starvation.py``)."""
         if self._verdict is not None and now - self._verdict[0] < EVIDENCE_WINDOW / 2:
             return self._verdict[1]
-        sched = process_sched(self.pid) if self.pid else None
-        stopped = sched is not None and sched.stopped
-        if sched is None or stopped:
-            starved = False
+        sched = thread_sched(self.pid, self.tid) if self.pid else None
+        if sched is None:
+            verdict = "hung"  # gone, or nothing to read: no evidence
+        elif sched.stopped:
+            verdict = "stopped"
         elif self._base is None:  # the watcher itself missed the start: evidence from now on
-            self._base = (now, sched.run_delay)
-            starved = True
+            self._base = (now, sched)
+            verdict = "starved"
         else:
-            t0, d0 = self._base
-            starved = now - t0 < EVIDENCE_WINDOW or sched.run_delay - d0 >= STARVED_SHARE * (now - t0)
-        self._verdict = (now, starved, stopped)
-        return starved
+            t0, s0 = self._base
+            elapsed = now - t0
+            if elapsed < EVIDENCE_WINDOW:
+                verdict = "starved"  # too short to tell: the benefit of the doubt, for EVIDENCE_WINDOW
+            elif sched.run_delay - s0.run_delay >= STARVED_SHARE * elapsed:
+                verdict = "starved"
+            elif sched.runs - s0.runs >= BEATING_SHARE * elapsed / self.health.heartbeat_period:
+                verdict = "beating"
+            else:
+                verdict = "hung"
+        self._verdict = (now, verdict)
+        return verdict
 
-    def starved_line(self, now: float) -> str | None:
-        """Once per silence, the warning that it is judged starved rather than hung; else None."""
-        if self._starved_said or self._verdict is None or not self._verdict[1] or self.silence(now) <= self.limit():
+    def evidence_line(self, now: float) -> str | None:
+        """Once per silence past the hung bound judged starved or beating unheard, its warning; else None."""
+        if self._said or self._verdict is None or self._verdict[1] not in ("starved", "beating") \
+                or self.silence(now) <= self.limit():
             return None
-        self._starved_said = True
-        waited = ""
-        if self._base is not None and (sched := process_sched(self.pid)) is not None:
-            waited = f" (its threads waited {(sched.run_delay - self._base[1]) * 1e3:.0f} ms for one since)"
-        return (f"the {self.service.value} service has been silent for {self.silence(now) * 1e3:.0f} ms, "
-                f"past its hung bound of {self.limit() * 1e3:.0f} ms, but it is starved of the CPU{waited}: "
-                f"judged hung only if still silent after {max(STARVED_MAX, self.limit()) * 1e3:.0f} ms")
+        self._said = True
+        why = ("it is starved of the CPU (its heartbeat thread waits for one)" if self._verdict[1] == "starved"
+               else "it beats (its heartbeat thread runs), and its beats do not arrive: the link or this "
+                    "watcher's reception stalls")
+        return (f"the {self.service.value} service has been silent for {self.silence(now) * 1e3:.0f} ms, past "
+                f"its hung bound of {self.limit() * 1e3:.0f} ms, but {why}: judged hung only if still silent "
+                f"after {max(STARVED_MAX, self.limit()) * 1e3:.0f} ms")
 
     def hung(self, now: float) -> bool:
         """Silent (see :meth:`stale`), or a loop of it stuck; never once it said it is leaving."""
@@ -256,13 +269,12 @@ class ServiceWatch:
         """What makes it hung, for the alarm's description."""
         if self.stuck:
             return "; ".join(self.stuck)
-        if self._verdict is not None and self._verdict[2]:
-            why = "its process is stopped (SIGSTOP, or held by a debugger)"
-        elif self._verdict is not None and self._verdict[1]:
-            why = "starved of the CPU all that time"
-        elif self.pid:
-            why = "its process neither ran nor waited for a CPU"
-        else:
+        verdict = self._verdict[1] if self._verdict is not None else None
+        why = {"stopped": "its process is stopped (SIGSTOP, or held by a debugger)",
+               "starved": "starved of the CPU all that time",
+               "beating": "it beat all that time, and its beats did not arrive",
+               "hung": "its heartbeat thread neither ran nor waited for a CPU"}.get(verdict or "", "")
+        if not self.pid or not why:
             why = "stopped, or starved of the CPU"
         return (f"no heartbeat for {self.silence(now) * 1e3:.0f} ms (bound {self.limit() * 1e3:.0f} ms, "
                 f"timing profile {self.health.name}; {why})")

@@ -1,16 +1,22 @@
-"""Evidence about a silent service on this host: stopped, or starved of the CPU?
+"""Evidence about a silent service on this host: stopped, asleep, starved, or beating unheard?
 
-A heartbeat that does not come says the process did not run, not why. On the
-watcher's own host the kernel says why (``/proc/<pid>/task/*``): a thread in
-state ``T`` or ``t`` is stopped (SIGSTOP, a debugger), and a thread's
-``schedstat`` counts the time it was runnable but waited for a CPU (its run
-delay). :class:`~.heartbeat.ServiceWatch` asks this only during a silence
-longer than the stall bound, a few file reads, never per beat.
+A heartbeat that does not come says that it did not arrive, not why. On the
+watcher's own host the kernel says why (``/proc/<pid>/task/<tid>``): a thread
+in state ``T`` or ``t`` is stopped (SIGSTOP, a debugger); the heartbeat
+thread's ``schedstat`` counts the time it was runnable but waited for a CPU
+(its run delay) and how often it was given one. :class:`~.heartbeat.ServiceWatch`
+asks this only during a silence longer than the stall bound, a few file reads,
+never per beat.
 
-A service whose threads waited for a CPU for ``STARVED_SHARE`` of its silence
-or more is starved, not hung: the machine is busy (docs/timing.md, "Starved or
-hung"). It is judged hung once it has been silent for ``STARVED_MAX`` all the
-same: a service that long without the CPU is not doing its job.
+* The heartbeat thread waited for a CPU for ``STARVED_SHARE`` of the silence
+  or more: the service is *starved*, not hung (the machine is busy).
+* It ran at least every other heartbeat period: the service *beats*, and its
+  beats do not arrive (the link or the watcher's own reception stalls).
+* Neither (it sleeps: blocked, deadlocked), or a thread is stopped: *hung*.
+
+Starved or beating unheard, it is judged hung all the same once silent for
+``STARVED_MAX``: a service that long out of sight is not doing its job
+(docs/timing.md, "Starved or hung").
 """
 
 from __future__ import annotations
@@ -20,9 +26,9 @@ import os
 from typing import Final
 
 
-def _boot_id() -> str:
+def _read(path: str) -> str:
     try:
-        with open("/proc/sys/kernel/random/boot_id", encoding="ascii") as f:
+        with open(path, encoding="ascii") as f:
             return f.read().strip()
     except OSError:
         return ""
@@ -35,49 +41,52 @@ def _pid_namespace() -> str:
         return ""
 
 
-#: This host's boot id and PID namespace ("" where there is none): a heartbeat that carries it comes
-#: from a process whose pid means the same here (containers of one host share the boot id, not the pids).
-THIS_HOST: Final[str] = f"{_boot_id()}/{_pid_namespace()}" if _boot_id() and _pid_namespace() else ""
+def _this_host() -> str:
+    boot, ns = _read("/proc/sys/kernel/random/boot_id"), _pid_namespace()
+    return f"{boot}/{ns}" if boot and ns else ""
 
-#: Its threads waited for a CPU for at least this share of a silence [-]: starved. A process that
-#: sleeps (blocked, deadlocked) waits for none; one starved by a busy machine waits for most of it
-#: (with a busy loop on every core and 4 arms: 40-95 %, ``bench/soak.py --hog``).
+
+#: This host's boot id and PID namespace ("" where there is none): a heartbeat that carries it comes
+#: from a process whose ids mean the same here (containers of one host share the boot id, not the pids).
+THIS_HOST: Final[str] = _this_host()
+
+#: The heartbeat thread waited for a CPU for at least this share of a silence [-]: starved. A thread
+#: that sleeps between beats waits for almost none (it runs 10 times a second for microseconds); one
+#: starved by a busy machine waits for most of it (each of three busy processes on one core: 67 %).
 STARVED_SHARE: Final = 0.25
-#: A starved service is judged hung all the same once silent this long [s]: the LAN profile's
-#: hung bound, the longest silence the system accepts for any reason.
+#: ... or it was given a CPU at least this share of the heartbeat periods of the silence [-]: it beats.
+BEATING_SHARE: Final = 0.5
+#: Starved or beating unheard, a service is judged hung all the same once silent this long [s]: the
+#: LAN profile's hung bound, the longest silence the system accepts for any reason.
 STARVED_MAX: Final = 5.0
-#: The run delay is compared over at least this long [s] before a starved verdict.
+#: The counters are compared over at least this long [s] before a verdict other than hung.
 EVIDENCE_WINDOW: Final = 0.2
 
 
 @dataclasses.dataclass(frozen=True)
-class ProcessSched:
-    """What the kernel says about one process now."""
+class ThreadSched:
+    """What the kernel says about a service's heartbeat thread now."""
 
-    stopped: bool  # a thread of it is stopped (SIGSTOP) or stopped by a tracer (a debugger)
-    run_delay: float  # [s] its threads' time runnable but waiting for a CPU, summed, since they started
+    stopped: bool  # a thread of its process is stopped (SIGSTOP) or stopped by a tracer (a debugger)
+    run_delay: float  # [s] the thread's time runnable but waiting for a CPU, since it started
+    runs: int  # times the thread was given a CPU, since it started
 
 
-def process_sched(pid: int) -> ProcessSched | None:
-    """``pid``'s threads now, or None if it cannot be read (gone, another host's pid, no /proc)."""
-    if pid <= 0:
+def thread_sched(pid: int, tid: int) -> ThreadSched | None:
+    """Heartbeat thread ``tid`` of process ``pid`` now, or None if it cannot be read (gone, another
+    host's ids, no /proc)."""
+    if pid <= 0 or tid <= 0:
         return None
-    stopped = False
-    delay_ns = 0
+    sched = _read(f"/proc/{pid}/task/{tid}/schedstat").split()
+    if len(sched) < 3 or not (sched[1].isdigit() and sched[2].isdigit()):
+        return None
     try:
         tids = os.listdir(f"/proc/{pid}/task")
     except OSError:
         return None
-    for tid in tids:
-        try:
-            with open(f"/proc/{pid}/task/{tid}/stat", encoding="ascii") as f:
-                stat = f.read()
-            with open(f"/proc/{pid}/task/{tid}/schedstat", encoding="ascii") as f:
-                sched = f.read().split()
-        except OSError:
-            continue  # a thread that ended meanwhile
-        state = stat[stat.rfind(")") + 2:stat.rfind(")") + 3]
-        stopped |= state in ("T", "t")
-        if len(sched) >= 2 and sched[1].isdigit():
-            delay_ns += int(sched[1])
-    return ProcessSched(stopped, delay_ns * 1e-9)
+    stopped = False
+    for t in tids:
+        stat = _read(f"/proc/{pid}/task/{t}/stat")  # "" for a thread that ended meanwhile
+        end = stat.rfind(")")
+        stopped |= end > 0 and stat[end + 2:end + 3] in ("T", "t")
+    return ThreadSched(stopped, int(sched[1]) * 1e-9, int(sched[2]))

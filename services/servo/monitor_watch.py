@@ -69,7 +69,7 @@ class MonitorWatch:
         if (sample := self._beats.try_recv()) is not None:
             try:
                 beat = decode_sample(HEARTBEAT, sample)
-                gap = watch.heard(now, beat.stuck, beat.leaving, beat.pid, beat.host)
+                gap = watch.heard(now, beat.stuck, beat.leaving, beat.pid, beat.host, beat.tid)
             except WireError as exc:
                 found.append(Finding(error=f"ignored a malformed heartbeat of the alarm monitor: {exc}"))
             else:
@@ -78,7 +78,7 @@ class MonitorWatch:
         if now >= self._judge_after and not hung_latched and watch.hung(now):
             found.append(Finding(AlarmCode.MONITOR_HUNG,
                                  f"the alarm monitor hangs while its liveliness token is up: {watch.why_hung(now)}"))
-        elif (line := watch.starved_line(now)) is not None:
+        elif (line := watch.evidence_line(now)) is not None:
             found.append(Finding(warning=line))
         return found
 
