@@ -309,7 +309,7 @@ def main() -> int:
         Path(args.json).write_text(json.dumps({
             "arms": args.arms, "minutes": wall / 60, "hog": args.hog, "slow_client": args.slow_client,
             "frozen_client": args.frozen_client, "timing": args.timing,
-            "ready_after_s": ready_after, "alarms": alarms, "warnings": len(warnings),
+            "ready_after_s": ready_after, "alarms": alarms, "warnings": warnings,
             "per_arm": {a: dataclasses.asdict(t) | {"stalls": stalls[a], "longest_stall_ms": longest[a]}
                         for a, t in tallies.items()},
             "cpu": shares, "steal_s": total_steal}, indent=1))
