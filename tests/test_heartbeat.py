@@ -227,6 +227,19 @@ def test_a_process_that_beats_unheard_is_not_hung_until_starved_max(monkeypatch)
         child.wait()
 
 
+def test_a_thread_woken_far_more_often_than_it_beats_is_hung():
+    """A heartbeat thread that wakes every millisecond is not beating: it is a thread asking for a GIL
+    that a hung thread holds (CPython asks every 5 ms). Hung at the bound, as a deadlock is."""
+    child = _child("import time\nwhile True: time.sleep(0.001)")
+    try:
+        watch = _watch_of(child.pid)
+        assert _judged_after(watch, 0.8)
+        assert watch.evidence_line(time.monotonic()) is None
+    finally:
+        child.kill()
+        child.wait()
+
+
 def test_a_beat_from_another_host_gives_no_evidence():
     """Another host's pid means nothing here: silence past the bound is hung, as before."""
     import os

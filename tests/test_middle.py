@@ -191,10 +191,13 @@ def test_pause_stops_on_the_line_and_resume_reaches_the_target(arm: Arm):
                "the LIN a quarter of the way")
     arm.ok(arm.middle(OP.pause))
     wait_until(lambda: arm.common(OP.getState)["state"] & StateBit.PAUSED, 2.0, what="paused bit")
-    arm.servo_time.settled()  # braked to rest
+    held_q = arm.servo_time.settled()  # braked to rest: the servo's own joints
     held = arm.pose()[:, 3]
     arm.servo_time.passes(HOLD_WINDOW)  # paused: nothing may move the arm in this window
-    assert np.linalg.norm(arm.pose()[:, 3] - held) < 1e-5  # holds
+    # Held, on the servo's own samples: the command's getFeedbackPosCartesian follows Servo/status (10 Hz
+    # at rest), and a busy machine delays it further (a fresh-clone CI run beside two busy loops read a
+    # pose 36 um before the last of the braking as the "held" one).
+    assert np.abs(arm.servo_time.sample()[1] - held_q).max() < 1e-6  # [rad] holds
     assert 0.02 < np.linalg.norm(held - p0) < np.linalg.norm(d) - 0.02  # mid-way
     arm.ok(arm.middle(OP.resume))
     arm.idle()

@@ -36,7 +36,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 
 from .entities import Entities
 from .realtime import realtime_thread
-from .starvation import BEATING_SHARE, EVIDENCE_WINDOW, STARVED_MAX, STARVED_SHARE, THIS_HOST, ThreadSched, thread_sched
+from .starvation import BEATING_MAX, BEATING_SHARE, EVIDENCE_WINDOW, STARVED_MAX, STARVED_SHARE, THIS_HOST, ThreadSched, thread_sched
 from .timing import SAME_HOST, Health
 from .wire import Publication
 
@@ -180,6 +180,9 @@ class ServiceWatch:
             self.up_at = now
             self.stuck = ()
             self.leaving = False
+            self.pid = self.tid = 0  # a new process: evidence from its own first beat on
+            self._base = self._verdict = None
+            self._said = False
         return was and not up
 
     def heard(self, now: float, stuck: tuple[str, ...] = (), leaving: bool = False, pid: int = 0,
@@ -241,7 +244,8 @@ class ServiceWatch:
                 verdict = "starved"  # too short to tell: the benefit of the doubt, for EVIDENCE_WINDOW
             elif sched.run_delay - s0.run_delay >= STARVED_SHARE * elapsed:
                 verdict = "starved"
-            elif sched.runs - s0.runs >= BEATING_SHARE * elapsed / self.health.heartbeat_period:
+            elif (BEATING_SHARE * elapsed / self.health.heartbeat_period <= sched.runs - s0.runs
+                  <= BEATING_MAX * elapsed / self.health.heartbeat_period):
                 verdict = "beating"
             else:
                 verdict = "hung"
@@ -273,7 +277,7 @@ class ServiceWatch:
         why = {"stopped": "its process is stopped (SIGSTOP, or held by a debugger)",
                "starved": "starved of the CPU all that time",
                "beating": "it beat all that time, and its beats did not arrive",
-               "hung": "its heartbeat thread neither ran nor waited for a CPU"}.get(verdict or "", "")
+               "hung": "its heartbeat thread neither ran nor waited for a CPU, or ran without beating"}.get(verdict or "", "")
         if not self.pid or not why:
             why = "stopped, or starved of the CPU"
         return (f"no heartbeat for {self.silence(now) * 1e3:.0f} ms (bound {self.limit() * 1e3:.0f} ms, "

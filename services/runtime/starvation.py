@@ -28,7 +28,7 @@ from typing import Final
 
 def _read(path: str) -> str:
     try:
-        with open(path, encoding="ascii") as f:
+        with open(path, encoding="ascii", errors="replace") as f:  # a thread's name may be anything
             return f.read().strip()
     except OSError:
         return ""
@@ -56,6 +56,9 @@ THIS_HOST: Final[str] = _this_host()
 STARVED_SHARE: Final = 0.25
 #: ... or it was given a CPU at least this share of the heartbeat periods of the silence [-]: it beats.
 BEATING_SHARE: Final = 0.5
+#: ... but not more than this many times per period [-]: a thread woken 200 times a second is not
+#: beating but asking for a GIL that a hung thread holds (CPython asks again every 5 ms).
+BEATING_MAX: Final = 4.0
 #: Starved or beating unheard, a service is judged hung all the same once silent this long [s]: the
 #: LAN profile's hung bound, the longest silence the system accepts for any reason.
 STARVED_MAX: Final = 5.0

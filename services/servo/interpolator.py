@@ -142,6 +142,7 @@ class Interpolator:
         #: or None: the control law checks it in full.
         self.screened: object = None
         self._state_key: tuple[object, ...] = ()
+        self._state_samples: object = None
         self._state: tuple[object, ...] = ()
         self._otg = Ruckig(1, dt)
         self._inp = InputParameter(1)
@@ -184,13 +185,15 @@ class Interpolator:
         """What ``Servo/motion`` says but its time and the scale (``held``: the target the servo holds):
         a new value is a new ``seq``."""
         queue = self.queue
-        # Every cycle: built again only when what it is made of changed (a splice replaces q).
-        key = (self.epoch, len(queue), id(queue[-1].q) if queue else id(held), queue[-1].final if queue else True,
+        # Every cycle: built again only when what it is made of changed (a splice replaces q; the
+        # held target is replaced, never changed in place).
+        samples = queue[-1].q if queue else held
+        key = (self.epoch, len(queue), queue[-1].final if queue else True,
                self.last_done, self.last_discarded, self.paused, self.holding, self.stopping, self.override)
-        if key == self._state_key:
+        if key == self._state_key and samples is self._state_samples:
             return self._state
         tail = self.tail(held)
-        self._state_key = key
+        self._state_key, self._state_samples = key, samples
         self._state = (self.epoch, tuple(b.motion for b in queue), self.head, self.last_done, self.last_discarded,
                        self.paused, self.active and not self.holding, self.stopping, self.override,
                        () if tail is None else tuple(tail.tolist()))
@@ -342,7 +345,8 @@ class Interpolator:
             self._completed(cur)
             cur = self.queue[0]
         self.tau = tau
-        self.screened = cur.screened_at(min(int(tau), cur.end - 1))
+        # The segment whose end the cycle before may have been at too: tau in (i, i + 1] is segment i.
+        self.screened = cur.screened_at(min(max(0, math.ceil(tau) - 1), cur.end - 1))
         if self.stopping and self.scale == 0.0 and self._scale_v == 0.0:
             q = self._at(cur, tau)
             ids = [b.motion for b in self.queue]

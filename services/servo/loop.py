@@ -147,7 +147,8 @@ class ServoLoop:
         self._late_cycles = 0  # consecutive cycles waited for a command mid-motion
         self._still_for = 0  # consecutive cycles at rest (see SETTLED_CYCLES)
         self._status_k = -STATUS_EVERY_AT_REST  # cycle of the last ServoStatus
-        self._watch_phase = 0  # cycles k % WATCH_EVERY == this watch the alarm monitor
+        self._watch_phase = 0  # ticks n % WATCH_EVERY == this watch the alarm monitor
+        self._watch_k = 0
         self._status_said: tuple[object, ...] = ()  # what it said besides the measured values
         self._status_q: np.ndarray | None = None  # the target it said
         self._vel_list: list[float] = vel.tolist()
@@ -272,7 +273,8 @@ class ServoLoop:
                 self.adopt_monitor_list(decode_sample(ALARM_LIST, sample))
             except WireError as exc:
                 self._log.error("ignored a malformed alarm list from the monitor: %s", exc)
-        if k % WATCH_EVERY == self._watch_phase:
+        self._watch_k += 1  # not k: it stands still while a late client stream is waited for
+        if self._watch_k % WATCH_EVERY == self._watch_phase:
             self._alarm_copy.answer(self._alarm_list_held)
             self._watch_monitor()
         while self._calls:
