@@ -954,3 +954,21 @@ def test_the_state_is_published_only_when_it_changes():
     assert published == [StateBit.SERVO_ON]
     tracker.on_status(dataclasses.replace(status, moving=True))
     assert published == [StateBit.SERVO_ON, StateBit.SERVO_ON | StateBit.MOVING]
+
+
+def test_a_stale_view_first_takes_in_what_arrived():
+    """A command service held up without a CPU has statuses waiting: the view reads them before it says
+    "no status" (``StateTracker.catch_up``); with nothing waiting it still says so."""
+    from jara_arm.services.command.state import StateTracker
+
+    tracker = StateTracker(4, publish=lambda view: None, stale_after=0.05)
+    z = (0.0,) * N
+    status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
+    tracker.on_status(status)
+    assert tracker.view().servo_heard and tracker.view().servo_on
+    waiting: list[messages.ServoStatus] = []
+    tracker.catch_up = lambda: [tracker.on_status(s) for s in waiting] and waiting.clear()
+    wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")  # none waiting: stale
+    waiting.append(status)
+    view = tracker.view()  # stale, but one waits: taken in first
+    assert view.servo_heard and view.servo_on and not waiting

@@ -40,6 +40,8 @@ class Watcher:
                  pulse: Pulse | None = None) -> None:
         self._tracker = tracker
         self._pulse = pulse or Pulse("the state watcher", 0.5)
+        self._drain_lock = threading.Lock()  # the watcher's thread and a call's catch-up: one at a time, in order
+        tracker.catch_up = self.drain
         self._entities = Entities()
         enter = self._entities.enter_context
         self._status = enter(session.declare_subscriber(keys.servo_status,
@@ -66,7 +68,9 @@ class Watcher:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2.0)
-        self._entities.close()
+        self._tracker.catch_up = None
+        with self._drain_lock:  # a call's catch-up in progress ends before the subscribers close
+            self._entities.close()
 
     def _run(self) -> None:
         while not self._stop.wait(WATCHER_POLL):
@@ -75,6 +79,10 @@ class Watcher:
 
     def drain(self) -> None:
         """Everything that arrived since the last drain, in order, then the staleness check."""
+        with self._drain_lock:
+            self._drain()
+
+    def _drain(self) -> None:
         while (s := self._planner.try_recv()) is not None:
             if s.kind == zenoh.SampleKind.DELETE:
                 log.warning("the planner service is gone: its queue is discarded")
