@@ -240,6 +240,28 @@ def test_a_thread_woken_far_more_often_than_it_beats_is_hung():
         child.wait()
 
 
+def test_a_process_whose_other_threads_wait_for_a_cpu_is_starved():
+    """Its heartbeat thread sleeps (as one waiting for a GIL does), and another of its threads waits for
+    a CPU beside two busy processes on one core: starved, not hung (8 arms on 2 cores: a false 0x412)."""
+    import os
+
+    spin = "import os, time; os.sched_setaffinity(0, {0}); end = time.monotonic() + 10\nwhile time.monotonic() < end: pass"
+    busy = [_child(spin) for _ in range(2)]
+    child = _child("import os, threading, time\nos.sched_setaffinity(0, {0})\n"
+                   "def spin():\n    end = time.monotonic() + 10\n    while time.monotonic() < end: pass\n"
+                   "threading.Thread(target=spin, daemon=True).start()\ntime.sleep(30)")
+    try:
+        wait_until(lambda: all(os.sched_getaffinity(c.pid) == {0} for c in [*busy, child]), timeout=5)
+        watch = _watch_of(child.pid)  # its main thread, asleep, as the heartbeat thread
+        assert not _judged_after(watch, 0.8)
+        line = watch.evidence_line(time.monotonic())
+        assert line is not None and "starved of the CPU" in line
+    finally:
+        for c in [*busy, child]:
+            c.kill()
+            c.wait()
+
+
 def test_a_beat_from_another_host_gives_no_evidence():
     """Another host's pid means nothing here: silence past the bound is hung, as before."""
     import os

@@ -247,6 +247,8 @@ class ServiceWatch:
             elif (BEATING_SHARE * elapsed / self.health.heartbeat_period <= sched.runs - s0.runs
                   <= BEATING_MAX * elapsed / self.health.heartbeat_period):
                 verdict = "beating"
+            elif sched.process_run_delay - s0.process_run_delay >= STARVED_SHARE * elapsed:
+                verdict = "starved"  # the heartbeat thread waits for a GIL whose holder waits for a CPU
             else:
                 verdict = "hung"
         self._verdict = (now, verdict)

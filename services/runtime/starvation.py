@@ -12,7 +12,11 @@ never per beat.
   or more: the service is *starved*, not hung (the machine is busy).
 * It ran at least every other heartbeat period: the service *beats*, and its
   beats do not arrive (the link or the watcher's own reception stalls).
-* Neither (it sleeps: blocked, deadlocked), or a thread is stopped: *hung*.
+* Neither, but the process's threads together waited for a CPU for
+  ``STARVED_SHARE`` of the silence: *starved* too (the heartbeat thread sleeps
+  on a GIL whose holder waits for a CPU; it wakes every 5 ms to ask for it).
+* None of these (every thread sleeps: blocked, deadlocked), or a thread is
+  stopped: *hung*.
 
 Starved or beating unheard, it is judged hung all the same once silent for
 ``STARVED_MAX``: a service that long out of sight is not doing its job
@@ -73,6 +77,7 @@ class ThreadSched:
     stopped: bool  # a thread of its process is stopped (SIGSTOP) or stopped by a tracer (a debugger)
     run_delay: float  # [s] the thread's time runnable but waiting for a CPU, since it started
     runs: int  # times the thread was given a CPU, since it started
+    process_run_delay: float  # [s] the same for every thread of its process, summed
 
 
 def thread_sched(pid: int, tid: int) -> ThreadSched | None:
@@ -88,8 +93,12 @@ def thread_sched(pid: int, tid: int) -> ThreadSched | None:
     except OSError:
         return None
     stopped = False
+    delay_ns = 0
     for t in tids:
         stat = _read(f"/proc/{pid}/task/{t}/stat")  # "" for a thread that ended meanwhile
         end = stat.rfind(")")
         stopped |= end > 0 and stat[end + 2:end + 3] in ("T", "t")
-    return ThreadSched(stopped, int(sched[1]) * 1e-9, int(sched[2]))
+        other = _read(f"/proc/{pid}/task/{t}/schedstat").split()
+        if len(other) >= 2 and other[1].isdigit():
+            delay_ns += int(other[1])
+    return ThreadSched(stopped, int(sched[1]) * 1e-9, int(sched[2]), delay_ns * 1e-9)
