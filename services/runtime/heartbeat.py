@@ -36,7 +36,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 
 from .entities import Entities
 from .realtime import realtime_thread
-from .starvation import BEATING_MAX, BEATING_SHARE, EVIDENCE_WINDOW, STARVED_MAX, STARVED_SHARE, THIS_HOST, ThreadSched, thread_sched
+from .starvation import EVIDENCE_WINDOW, STARVED_MAX, THIS_HOST, ThreadSched, judge, thread_sched
 from .timing import SAME_HOST, Health
 from .wire import Publication
 
@@ -223,7 +223,11 @@ class ServiceWatch:
                 sched = thread_sched(self.pid, self.tid)
                 self._base = (now, sched) if sched is not None else None
             return False
-        return not self.pid or silence > max(STARVED_MAX, self.limit()) or self.verdict(now) in ("hung", "stopped")
+        return not self.pid or silence > self._starved_limit() or self.verdict(now) in ("hung", "stopped")
+
+    def _starved_limit(self) -> float:
+        """[s] the silence that makes it hung even when starved or beating unheard."""
+        return max(STARVED_MAX, self.limit())
 
     def verdict(self, now: float) -> str:
         """During a silence: "stopped", "starved", "beating" (unheard) or "hung" (see ``starvation.py``)."""
@@ -232,25 +236,11 @@ class ServiceWatch:
         sched = thread_sched(self.pid, self.tid) if self.pid else None
         if sched is None:
             verdict = "hung"  # gone, or nothing to read: no evidence
-        elif sched.stopped:
-            verdict = "stopped"
-        elif self._base is None:  # the watcher itself missed the start: evidence from now on
-            self._base = (now, sched)
-            verdict = "starved"
         else:
-            t0, s0 = self._base
-            elapsed = now - t0
-            if elapsed < EVIDENCE_WINDOW:
-                verdict = "starved"  # too short to tell: the benefit of the doubt, for EVIDENCE_WINDOW
-            elif sched.run_delay - s0.run_delay >= STARVED_SHARE * elapsed:
-                verdict = "starved"
-            elif (BEATING_SHARE * elapsed / self.health.heartbeat_period <= sched.runs - s0.runs
-                  <= BEATING_MAX * elapsed / self.health.heartbeat_period):
-                verdict = "beating"
-            elif sched.process_run_delay - s0.process_run_delay >= STARVED_SHARE * elapsed:
-                verdict = "starved"  # the heartbeat thread waits for a GIL whose holder waits for a CPU
-            else:
-                verdict = "hung"
+            if self._base is None:  # the watcher itself missed the start: evidence from now on
+                self._base = (now, sched)
+            t0, before = self._base
+            verdict = judge(before, sched, now - t0, self.health.heartbeat_period)
         self._verdict = (now, verdict)
         return verdict
 
@@ -265,7 +255,7 @@ class ServiceWatch:
                     "watcher's reception stalls")
         return (f"the {self.service.value} service has been silent for {self.silence(now) * 1e3:.0f} ms, past "
                 f"its hung bound of {self.limit() * 1e3:.0f} ms, but {why}: judged hung only if still silent "
-                f"after {max(STARVED_MAX, self.limit()) * 1e3:.0f} ms")
+                f"after {self._starved_limit() * 1e3:.0f} ms")
 
     def hung(self, now: float) -> bool:
         """Silent (see :meth:`stale`), or a loop of it stuck; never once it said it is leaving."""

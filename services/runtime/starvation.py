@@ -29,6 +29,8 @@ import dataclasses
 import os
 from typing import Final
 
+from .timing import LAN
+
 
 def _read(path: str) -> str:
     try:
@@ -65,7 +67,7 @@ BEATING_SHARE: Final = 0.5
 BEATING_MAX: Final = 4.0
 #: Starved or beating unheard, a service is judged hung all the same once silent this long [s]: the
 #: LAN profile's hung bound, the longest silence the system accepts for any reason.
-STARVED_MAX: Final = 5.0
+STARVED_MAX: Final = LAN.hung_after
 #: The counters are compared over at least this long [s] before a verdict other than hung.
 EVIDENCE_WINDOW: Final = 0.2
 
@@ -102,3 +104,19 @@ def thread_sched(pid: int, tid: int) -> ThreadSched | None:
         if len(other) >= 2 and other[1].isdigit():
             delay_ns += int(other[1])
     return ThreadSched(stopped, int(sched[1]) * 1e-9, int(sched[2]), delay_ns * 1e-9)
+
+
+def judge(before: ThreadSched, now: ThreadSched, elapsed: float, period: float) -> str:
+    """The verdict on a silent service from its heartbeat thread ``before`` and ``now``, ``elapsed`` [s]
+    apart (its heartbeat ``period`` [s]): "stopped", "starved", "beating" (unheard) or "hung"."""
+    if now.stopped:
+        return "stopped"
+    if elapsed < EVIDENCE_WINDOW:
+        return "starved"  # too short to tell: the benefit of the doubt, for EVIDENCE_WINDOW
+    if now.run_delay - before.run_delay >= STARVED_SHARE * elapsed:
+        return "starved"
+    if BEATING_SHARE * elapsed / period <= now.runs - before.runs <= BEATING_MAX * elapsed / period:
+        return "beating"
+    if now.process_run_delay - before.process_run_delay >= STARVED_SHARE * elapsed:
+        return "starved"  # the heartbeat thread waits for a GIL whose holder waits for a CPU
+    return "hung"
