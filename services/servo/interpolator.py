@@ -70,12 +70,12 @@ class Buffered:
     q: np.ndarray  # (N, dof); row 0 is where it takes over; its tail may be replaced by a splice
     final: bool
     rate: float  # [1/s] fastest change of the scale along it
-    full: np.ndarray | None = None  # the samples before a splice cut them (restored if the splice is discarded)
+    #: The samples and their screen before a splice cut them (restored if the splice is discarded).
+    full: tuple[np.ndarray, np.ndarray | None] | None = None
     #: Per segment (samples i to i+1): every target a cycle can take in it passes the control law's
     #: checks against the soft limits ``limits`` (``ControlLaw.screen``); None: not screened.
     screened: np.ndarray | None = None
     limits: object = None
-    full_screened: np.ndarray | None = None
 
     @property
     def end(self) -> int:
@@ -254,8 +254,8 @@ class Interpolator:
         if not last.final:
             return TrajectoryRefusal.STATE, f"motion {last.motion} is a head still waiting for its rest"
         if k < last.end:
-            last.full, last.q = last.q, last.q[:k + 1]
-            last.full_screened = last.screened
+            last.full = last.q, last.screened
+            last.q = last.q[:k + 1]
             last.screened = None if last.screened is None else last.screened[:k]
         self.queue.append(traj)
         return None, "buffered" if splice < 0 else f"spliced into motion {last.motion} at sample {k}"
@@ -294,8 +294,7 @@ class Interpolator:
                 self.queue.pop()
             first = self.queue[0]
             if first.full is not None:
-                first.q, first.full = first.full, None
-                first.screened, first.full_screened = first.full_screened, None
+                (first.q, first.screened), first.full = first.full, None
             if dropped:
                 self.last_discarded = max(self.last_discarded, max(dropped))
             self.stopping, self.paused = True, False
