@@ -972,3 +972,31 @@ def test_a_stale_view_first_takes_in_what_arrived():
     waiting.append(status)
     view = tracker.view()  # stale, but one waits: taken in first
     assert view.servo_heard and view.servo_on and not waiting
+
+
+def test_a_motion_request_listens_for_a_status_before_it_says_there_is_none():
+    """A command service whose receiving threads were held up has no status yet: the view of a motion
+    request waits up to ``listen`` for one (a status arriving meanwhile counts); a servo that stays
+    silent is still "not heard", after ``listen``, not before."""
+    from jara_arm.services.command.state import StateTracker
+
+    tracker = StateTracker(4, publish=lambda view: None, stale_after=0.05)
+    z = (0.0,) * N
+    status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
+    drains: list[float] = []
+    tracker.catch_up = lambda: drains.append(time.monotonic())
+    t0 = time.monotonic()
+    view = tracker.view(listen=0.2)  # nothing ever came
+    assert not view.servo_heard and time.monotonic() - t0 >= 0.2
+    assert len(drains) >= 2  # what arrived meanwhile was looked for, not only once
+    late = threading.Timer(0.1, tracker.on_status, (status,))
+    late.start()
+    try:
+        view = tracker.view(listen=5.0)
+    finally:
+        late.join()
+    assert view.servo_heard and view.servo_on
+    wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")
+    drains.clear()
+    assert not tracker.view().servo_heard  # a plain view (getState) looks once and does not wait
+    assert len(drains) == 1

@@ -325,3 +325,22 @@ def test_after_an_early_start_the_next_motion_still_blends(planner, late):
     corner = planner.kin.control_point(s.whole.end[:planner.n]).translation
     closest = min(np.linalg.norm(planner.kin.control_point(x[:planner.n]).translation - corner) for x in q)
     assert 1e-3 < closest <= 0.02 + 1e-6, closest  # it cut the corner: no stop there
+
+
+def test_the_start_point_listens_for_a_status_before_it_says_there_is_none():
+    """The planner's receiving threads held up (a saturated machine): the start point waits up to
+    ``STATUS_LISTEN`` for a status before it refuses; a servo that stays silent is still refused."""
+    from jara_arm.services.runtime.timing import STATUS_LISTEN
+
+    servo = LocalServo(IIWA, Q0)
+    late = iter([None] * 5)  # five polls find nothing yet, then the status comes
+    h = Handover(IIWA.dof, servo.dt, servo.ask_trajectory, servo.ask_control, lambda _p: None,
+                 lambda: next(late, None) or servo.status(), servo.progress)
+    start, _epoch = h.start_point()
+    np.testing.assert_array_equal(start, Q0)
+    silent = Handover(IIWA.dof, servo.dt, servo.ask_trajectory, servo.ask_control, lambda _p: None,
+                      lambda: None, servo.progress)
+    t0 = time.monotonic()
+    with pytest.raises(PlanRefused, match="no status from the servo"):
+        silent.start_point()
+    assert time.monotonic() - t0 >= STATUS_LISTEN

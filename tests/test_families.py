@@ -85,7 +85,7 @@ class Arm:
         self.servo_time = ServoTime(session, self.client.keys)
 
     def ok(self, reply) -> None:
-        assert reply.id == ReturnCode.OK, reply
+        assert reply.id == ReturnCode.OK, f"{reply}\n{self.log()}"
 
     def middle(self, name, args=None):
         return self.client.middle(name, args)
@@ -151,7 +151,7 @@ class Arm:
     def log(self, lines: int = 15) -> str:
         """The last lines of the system's log that say why a motion ended early."""
         proc = getattr(self, "proc", None)
-        keys = ("WARNING", "ERROR", "alarm", "abort")
+        keys = ("WARNING", "ERROR", "alarm", "abort", "refused", "servo o")
         return "\n".join([ln for ln in proc.lines if any(k in ln for k in keys)][-lines:]) if proc else ""
 
     def settle(self, tol: float = 1e-7, timeout: float = 2.0) -> None:
@@ -273,7 +273,7 @@ def test_cartesian_command_accepted_or_refused_per_table(arm: Arm, op: str):
         arm.servo_time.passes(QUIET_WINDOW)  # a motion queued all the same would move the arm in it
         assert np.abs(arm.joints() - q0).max() < 1e-6  # nothing moved
         return
-    assert reply.id == ReturnCode.OK, reply
+    assert reply.id == ReturnCode.OK, f"{reply}\n{arm.log()}"
     arm.client.wait_idle(60.0)
     arm.settle()
     aborted = [ln for ln in arm.proc.lines[mark:] if "abort (" in ln or "ran dry" in ln]

@@ -19,6 +19,7 @@ from jara_arm.schema.operations import MIDDLE, OP
 from jara_arm.schema.planner import ControlAction, MotionRequest
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, HgMatrix, JointPos, LimitValue
 from jara_arm.services.runtime.rpc import ok, refuse
+from jara_arm.services.runtime.timing import STATUS_LISTEN
 
 from .cartesian import CartesianFeedback
 from .core import Core
@@ -111,7 +112,7 @@ class CommandMiddle:
         core = self.core
         op = MIDDLE[name]
         with core.serial:
-            view = core.state.view()
+            view = core.state.view(listen=STATUS_LISTEN)
             # The order of the refusals is DECISIONS.md's: state first, values last.
             if not view.servo_on:
                 why = ("the servo is off: call servoON first" if view.servo_heard else

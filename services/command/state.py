@@ -95,14 +95,20 @@ class StateTracker:
         self.catch_up: Callable[[], None] | None = None
 
     # -- reading ------------------------------------------------------------------
-    def view(self) -> StateView:
+    def view(self, listen: float = 0.0) -> StateView:
         """The state now. If the newest ``Servo/status`` is older than the staleness window, what
         already arrived is taken in first (``catch_up``): a command service held up without a CPU
         (a busy machine) has statuses waiting, and "no status" must mean none came, not none was read
-        (8 arms on 2 cores: 13 moves refused in 2 minutes for it)."""
+        (8 arms on 2 cores: 13 moves refused in 2 minutes for it). If there is still none, the view
+        waits up to ``listen`` [s] for one (``timing.STATUS_LISTEN`` for a motion request)."""
         catch_up = self.catch_up
         if catch_up is not None and time.monotonic() - self._status_at > self._stale_after:
             catch_up()
+            deadline = time.monotonic() + listen
+            while time.monotonic() - self._status_at > self._stale_after and time.monotonic() < deadline:
+                with self._cond:  # woken by on_status, or in a poll period to drain what came meanwhile
+                    self._cond.wait(min(0.02, max(0.0, deadline - time.monotonic())))
+                catch_up()
         with self._cond:
             return self._view()
 

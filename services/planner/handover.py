@@ -47,7 +47,7 @@ from jara_arm.schema.motion import (
 from jara_arm.schema.planner import ControlAction, PlannerProgress
 from jara_arm.schema.types import Time
 from jara_arm.services.runtime.heartbeat import Pulse
-from jara_arm.services.runtime.timing import SAME_HOST, STOP_WAIT, WATCHER_POLL
+from jara_arm.services.runtime.timing import SAME_HOST, STATUS_LISTEN, STOP_WAIT, WATCHER_POLL
 
 from .planning import PlanRefused
 from .profile import continue_profile
@@ -115,6 +115,10 @@ class Handover:
         """(start joints of the next motion, the servo's epoch); raises PlanRefused if there is none."""
         self._refresh()
         newest = self._poll_status()
+        deadline = time.monotonic() + STATUS_LISTEN
+        while newest is None and time.time() - self._status_at > STATUS_TIMEOUT and time.monotonic() < deadline:
+            time.sleep(0.01)  # this process's receiving threads may be the late ones: listen first
+            newest = self._poll_status()
         with self._lock:
             now = time.time()
             if newest is not None:

@@ -58,6 +58,12 @@ MONITOR_POLL: Final = 0.01
 #: The command service's state watcher drains its inputs this often [s]: the delay of a
 #: state change (bit 0x02 when a motion ends) seen by getState.
 WATCHER_POLL: Final = 0.01
+#: A motion request listens this long for a ``Servo/status`` before it says none came [s] (the
+#: command's state and the planner's start point): on a saturated machine the asker's own receiving
+#: threads can be the ones held up (8 arms on 2 cores: moves refused for "no Servo/status" while
+#: the servo published on time). A servo really gone is the alarm monitor's to report (0x410); this
+#: only delays the refusal of a move sent to a silent servo.
+STATUS_LISTEN: Final = 0.5
 #: While the servo slows down for a stop, the planner waits at most this long to learn where the
 #: arm stopped before it plans the next motion from there [s]: a stop from full speed takes
 #: about a min accel time (0.2-0.5 s for the robot models here).
