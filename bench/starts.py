@@ -5,8 +5,9 @@
 Each run starts the launcher on a free port with ``--demo`` (what ``make up``
 does), waits for the demo's last line, and stops it with SIGINT. Reports per
 run the time to the ready line and to the demo's end, and every alarm, stall,
-failed demo step or late-cycle warning it printed. Exits 1 if any run raised an
-alarm or had a failed step.
+failed demo step, stutter (an early start's head held at its last sample, a
+stream that ran dry, a clock that waited for commands) or late-cycle warning it
+printed. Exits 1 if any run raised an alarm, had a failed step or stuttered.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 from _system import free_port  # noqa: E402
 
+STUTTER = ("held at its last sample", "ran dry", "mid-motion for late commands")
 ALARM = re.compile(r"alarm 0x[0-9a-f]+ (FAULT|WARNING)|raised")
 
 
@@ -65,6 +67,8 @@ def one_run(robot: str, timeout: float) -> dict:
         "failed": [l.strip() for l in lines if "FAILED" in l or "step(s) failed" in l],
         "stalls": [l.strip() for l in lines if "was silent for" in l],
         "late": [l.strip() for l in lines if "cycles late by more than one period" in l],
+        # a stutter: a head that ran out before its rest (braked, then went on), a dry stream, a stopped clock
+        "stutters": [l.strip() for l in lines if any(k in l for k in STUTTER)],
         "clean_stop": "Traceback" not in text,
     }
 
@@ -78,14 +82,15 @@ def main() -> int:
     bad = 0
     for i in range(args.runs):
         r = one_run(args.robot, args.timeout)
-        ok = r["demo_s"] is not None and not r["alarms"] and not r["failed"] and r["clean_stop"]
+        ok = (r["demo_s"] is not None and not r["alarms"] and not r["failed"] and not r["stutters"]
+              and r["clean_stop"])
         bad += not ok
         ready = f"{r['ready_s']:.1f}" if r["ready_s"] is not None else "never"
         demo = f"{r['demo_s']:.1f}" if r["demo_s"] is not None else "never"
         print(f"run {i + 1:>2}: {'ok    ' if ok else 'FAILED'} ready {ready} s, demo done {demo} s, "
               f"{len(r['alarms'])} alarms, {len(r['failed'])} failed steps, {len(r['stalls'])} stalls, "
-              f"{len(r['late'])} late-cycle warnings", flush=True)
-        for line in r["alarms"] + r["failed"] + r["stalls"] + r["late"]:
+              f"{len(r['stutters'])} stutters, {len(r['late'])} late-cycle warnings", flush=True)
+        for line in r["alarms"] + r["failed"] + r["stutters"] + r["stalls"] + r["late"]:
             print("        " + line)
     print(f"{args.runs - bad} of {args.runs} starts clean")
     return 1 if bad else 0
