@@ -365,7 +365,15 @@ def check_no_jump(arm: System, since: float = 0.0, allowed: np.ndarray = ACC_ALL
     acc = np.diff(vel, axis=0)[both] / dt[1:][both, None]
     assert len(acc) > 50, "too few consecutive feedback samples"
     peak = np.abs(acc[:, :N]).max(axis=0)
-    assert np.all(peak <= allowed), f"feedback acceleration {peak.round(2)} beyond {allowed.round(2)}"
+    if not np.all(peak <= allowed):
+        k = int(np.argmax(np.abs(acc[:, :N]).max(axis=1) / allowed.max()))
+        at = tm[1:-1][both][k]
+        near = np.flatnonzero(np.abs(tm - at) < 0.005)
+        raise AssertionError(
+            f"feedback acceleration {peak.round(2)} beyond {allowed.round(2)}, at t = {at - since:.4f} s after "
+            f"the first command sent; the feedback around it (t [s] after it, joints):\n"
+            + "\n".join(f"{tm[i] - since:.4f} {np.round(q[i, :3], 6)}" for i in near)
+            + f"\n{arm.log_tail(lines=60)}")
     assert np.abs(vel[-20:, :N]).max() < 1e-2, "not at rest at the end of the recording"
     return q[-1]
 
