@@ -169,6 +169,32 @@ def test_a_stream_that_runs_dry_stops_smoothly_and_only_a_stream_from_rest_resum
     fresh = held.copy()
     fresh[1] += RESUME_TOLERANCE / 2  # a stream that starts again where the arm stopped
     assert law.follow(fresh) is None and not law.interrupted and np.array_equal(law.q, fresh)
+    assert not law.qd.any()  # taken up at rest: the tolerance corrects the position, it is no speed
+    # ... and it goes on from rest: jerk-limited, every command followed
+    for k in range(1, 200):
+        nxt = fresh.copy()
+        nxt[1] += 0.5 * AMAX[1] * (k * DT) ** 2 * min(1.0, k / 50)
+        assert law.follow(nxt) is None and np.array_equal(law.q, nxt), k
+    assert not law.interrupted
+
+
+def test_a_dry_stream_that_goes_on_mid_motion_through_the_held_target_is_not_taken_up():
+    """A stream late past the grace goes on where it would have been: one of its commands may land within
+    RESUME_TOLERANCE of where the arm stopped, but the next one moves on at the stream's speed; taking it
+    would step the velocity from zero in one cycle (375 rad/s² seen on the iiwa's J1, beside busy loops)."""
+    law = law_at_ready()
+    ramp(law, 1, 0.2 * VMAX[1], 500)
+    assert law.advance(True) == RAN_DRY
+    run_stop(law)
+    held = law.q.copy()
+    speed = 0.2 * VMAX[1]  # the stream goes on at its speed, through the held target
+    for k in range(-5, 40):
+        cmd = held.copy()
+        cmd[1] += k * speed * DT + RESUME_TOLERANCE / 4
+        before = law.q.copy()
+        assert law.follow(cmd) is None
+        assert np.abs(law.q - before).max() <= RESUME_TOLERANCE, (k, law.q - before)  # never a step at speed
+    assert law.interrupted and law.stale >= 40
 
 
 def test_a_disabled_law_does_not_take_from_the_fifo():

@@ -18,7 +18,10 @@ Rules on a position command (``follow``):
   applied command always ends inside);
 * the gripper axis is clamped into its hard limits, not refused;
 * after a stream ran dry, only a stream that starts again from rest where the
-  arm stopped is followed (``RESUME_TOLERANCE``); the rest is stale.
+  arm stopped is followed: a command within ``RESUME_TOLERANCE`` of the held
+  target, then ``RESUME_CYCLES`` commands that accelerate no harder than the
+  limit stop (``LIMIT_STOP_ACCEL``); a stream that goes on mid-motion through
+  the held target fails the second test and stays stale.
 
 A refused command is not applied. Stops (``brake``) are jerk-limited (Ruckig,
 ``braking.py``) and their targets are clamped into the soft limits, the last
@@ -54,6 +57,12 @@ LIMIT_STOP_ACCEL = 2.0
 #: After the stream ran dry, a command this close to the held target counts as starting
 #: from rest there (e.g. a client that starts from the measured joints) [rad or m].
 RESUME_TOLERANCE = 1e-4
+#: ... and for this many cycles after it, each command must accelerate the arm no harder than
+#: the limit stop does: a stream that merely passes the held target mid-motion would otherwise
+#: step the velocity from zero to its own in one cycle (0.38 rad/s on the iiwa's J1, 375 rad/s²,
+#: seen beside a busy loop per core). A real start from rest is jerk-limited: its first steps are
+#: far below [cycles].
+RESUME_CYCLES = 10
 #: After a stop for an alarm, a target this far from the measured joints means the
 #: arm is blocked (an obstacle): it is then held where it is, not pushed on [rad or m].
 RELAX_TOLERANCE = 0.01
@@ -93,6 +102,7 @@ class ControlLaw:
         self.braking: Braking | Glide | None = None  # a stop, or letting go of a push
         self.moving = False  # the commanded velocity qd is not all zero
         self.interrupted = False  # the stream ran dry mid-motion; wait for a consistent command
+        self._resuming = 0  # cycles left in which a resumed stream must accelerate as from rest
         self.consumed = 0  # commands taken from the FIFO
         self.stale = 0  # commands of an interrupted stream, dropped
 
@@ -192,7 +202,7 @@ class ControlLaw:
         if enabled and self.fifo:
             self.consumed += 1
             cmd = self.fifo.popleft()
-            if screened is not None and screened is self._soft_limits and not self.interrupted:
+            if screened is not None and screened is self._soft_limits and not (self.interrupted or self._resuming):
                 qd = (cmd - self.q) * self._per_cycle
                 self.qdd = (qd - self.qd) * self._per_cycle
                 self.q, self.qd = cmd, qd
@@ -226,6 +236,16 @@ class ControlLaw:
                 self.stale += 1
                 return None
             self.interrupted = False
+            refusal = self._checked(cmd, step)
+            if refusal is None:  # taken up at rest: the tolerance is a position correction, not a speed
+                self.qd = np.zeros_like(self.qd)
+                self.qdd = np.zeros_like(self.qdd)
+                self._resuming = RESUME_CYCLES
+            return refusal
+        return self._checked(cmd, step)
+
+    def _checked(self, cmd: np.ndarray, step: np.ndarray) -> Refusal | None:
+        """``cmd`` through every check of :meth:`follow`, applied if it passes."""
         if not np.all(np.isfinite(cmd)):
             return Refusal(AlarmCode.OVERSPEED, AlarmType.FAULT, "non-finite position command")
         axis = self.model.axis_num
@@ -254,6 +274,15 @@ class ControlLaw:
         """Follow ``cmd``, which passed every check but the stop before a soft limit."""
         qd = step * self._per_cycle
         qdd = (qd - self.qd) * self._per_cycle
+        if self._resuming:
+            self._resuming -= 1
+            if np.any(np.abs(qdd) > self._limit_amax):  # not a start from rest: the stream is stale still
+                self._resuming = 0
+                self.interrupted = True
+                self.stale += 1
+                self.qd = np.zeros_like(self.qd)
+                self.qdd = np.zeros_like(self.qdd)
+                return None
         i = self.overruns_soft_limit(cmd, qd, qdd)
         if i is not None:
             lim = self.soft_limits[i]
@@ -337,3 +366,4 @@ class ControlLaw:
         self.moving = False
         self.fifo.clear()
         self.interrupted = False
+        self._resuming = 0
