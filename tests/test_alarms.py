@@ -42,6 +42,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MOTION_SETTINGS
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
+from jara_arm.services.runtime.realtime import realtime_thread
 from jara_arm.services.runtime.timing import SAME_HOST
 from jara_arm.services.runtime.wire import Publication, decode_sample
 from jara_arm.services.servo.control import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
@@ -295,11 +296,7 @@ STREAM_PRIORITY = 30
 @contextlib.contextmanager
 def realtime_section(priority: int) -> Iterator[None]:
     """The calling thread at SCHED_FIFO ``priority`` meanwhile, where permitted (as it was, otherwise)."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-        raised = True
-    except (PermissionError, OSError):
-        raised = False
+    raised = realtime_thread(priority, "the test's position stream")
     try:
         yield
     finally:
@@ -389,7 +386,7 @@ def check_no_jump(arm: System, since: float = 0.0, allowed: np.ndarray = ACC_ALL
     assert len(acc) > 50, "too few consecutive feedback samples"
     peak = np.abs(acc[:, :N]).max(axis=0)
     if not np.all(peak <= allowed):
-        k = int(np.argmax(np.abs(acc[:, :N]).max(axis=1) / allowed.max()))
+        k = int(np.argmax((np.abs(acc[:, :N]) / allowed).max(axis=1)))  # the sample furthest beyond
         at = tm[1:-1][both][k]
         near = np.flatnonzero(np.abs(tm - at) < 0.005)
         raise AssertionError(

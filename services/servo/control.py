@@ -215,8 +215,7 @@ class ControlLaw:
             self.advance(enabled)  # the stop starts this cycle
             return RAN_DRY
         if self.moving:
-            self.qd = np.zeros_like(self.qd)
-            self.qdd = np.zeros_like(self.qdd)
+            self._still()
             self.moving = False
         return None
 
@@ -238,8 +237,7 @@ class ControlLaw:
             self.interrupted = False
             refusal = self._checked(cmd, step)
             if refusal is None:  # taken up at rest: the tolerance is a position correction, not a speed
-                self.qd = np.zeros_like(self.qd)
-                self.qdd = np.zeros_like(self.qdd)
+                self._still()
                 self._resuming = RESUME_CYCLES
             return refusal
         return self._checked(cmd, step)
@@ -280,8 +278,7 @@ class ControlLaw:
                 self._resuming = 0
                 self.interrupted = True
                 self.stale += 1
-                self.qd = np.zeros_like(self.qd)
-                self.qdd = np.zeros_like(self.qdd)
+                self._still()
                 return None
         i = self.overruns_soft_limit(cmd, qd, qdd)
         if i is not None:
@@ -358,11 +355,15 @@ class ControlLaw:
         self.braking = Glide(self.q, target, RELAX_TIME, self.dt)
         return i, float(gap[i])
 
+    def _still(self) -> None:
+        """Zero commanded speed and acceleration (the target stays)."""
+        self.qd = np.zeros_like(self.qd)
+        self.qdd = np.zeros_like(self.qdd)
+
     def hold(self, q: np.ndarray) -> None:
         """Hold ``q`` [rad or m] at rest from now on (servo on): nothing queued, nothing stopping."""
         self.q = np.array(q, dtype=float)
-        self.qd = np.zeros_like(self.qd)
-        self.qdd = np.zeros_like(self.qdd)
+        self._still()
         self.moving = False
         self.fifo.clear()
         self.interrupted = False
