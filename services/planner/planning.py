@@ -123,7 +123,8 @@ class Head:
 
     ``motion.q``: the samples that may go out (at most the early-start time's);
     ``motion.path``: the joints up to the head's end (the path's first knot interval), every sample on the
-    path, within the joint speeds and clear of collisions, so that braking from any sample sent stays on it.
+    path and within the joint speeds; those of ``motion.q`` clear of collisions too (the servo never runs a
+    head past its last sample).
     The whole motion's samples start with ``motion.q`` bit for bit when its profile is ``motion.profile``
     (not slowed down): the same computation, and cubic Hermite pieces are local.
     """
@@ -647,12 +648,16 @@ class MotionPlanner:
         if early < 2:
             return
         q = np.repeat(start[None, :], m, axis=0)
+        # Every sample up to the last knot solved, not only those sent: a sample off the path splits its
+        # knot interval at the sample nearest its middle, and the whole must split it where the head did.
         q[:, :self.n] = joints.joints(s[:m], self._ik_targets(poses, frames, rule))
-        if (np.abs(np.diff(q[:, :self.n], axis=0)) / self.dt > vmax).any() or self.collisions.check(q) is not None:
+        if (np.abs(np.diff(q[:, :self.n], axis=0)) / self.dt > vmax).any():
             return  # the whole plan decides and says why
         while early >= 2 and profile.stop_at((early - 1) * self.dt).s_end > s[m - 1]:
             early //= 2  # braking from the last early sample must end on the head
-        if early < 2:
+        # Collisions on the samples sent only: the servo never runs a head past its last sample (it slows
+        # the head down instead, and a refusal stops it on them); the whole checks the rest.
+        if early < 2 or self.collisions.check(q[:early]) is not None:
             return
         stop = profile.stop_at((early - 1) * self.dt).s_end
         points = path.positions(np.append(s[:m][s[:m] < stop], stop))
