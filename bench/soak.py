@@ -1,6 +1,6 @@
 """Soak: N arms moving continuously for M minutes; every alarm in a soak is a false alarm.
 
-    python bench/soak.py [--arms N] [--minutes M] [--hog] [--slow-client] [--frozen-client]
+    python bench/soak.py [--arms N] [--minutes M] [--hog] [--slow-client] [--frozen-client] [--reader]
                          [--robot iiwa] [--timing same-host]
 
 Starts ``jara-arm up`` with N arms, switches every servo on and drives each arm
@@ -10,7 +10,8 @@ motion queued while the current one runs, so the stream never pauses). With
 vision, UI and logging a real cell's PC also runs). ``--slow-client`` connects a client that
 subscribes to ``JARA_ARM/**`` and spends 20 ms in each sample's callback; ``--frozen-client`` one
 that subscribes to every arm's ``Servo/posFeedback`` and is stopped (SIGSTOP) for 10 s, let go for
-5 s, again and again (``bench/bad_client.py``).
+5 s, again and again (``bench/bad_client.py``). ``--reader`` connects a client that takes every
+arm's ``Servo/posFeedback`` and keeps up: what the bad clients ask for, without their badness.
 
 Reports per arm: servo cycles, cycles late by more than one period, overruns,
 underruns (from the servo's own ``Servo/health``), motions completed, calls
@@ -45,7 +46,7 @@ from jara_arm.launcher.watch import format_log  # noqa: E402
 from jara_arm.robots import robot  # noqa: E402
 from jara_arm.schema import codec, messages  # noqa: E402
 from jara_arm.schema.codes import ReturnCode, StateBit  # noqa: E402
-from jara_arm.schema.keys import ArmKeys, any_arm_alarm, any_arm_log, arm_of  # noqa: E402
+from jara_arm.schema.keys import ANY_ARM, ArmKeys, any_arm_alarm, any_arm_log, arm_of  # noqa: E402
 from jara_arm.schema.operations import OP  # noqa: E402
 from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
 
@@ -102,10 +103,10 @@ BAD_CLIENT = Path(__file__).parent / "bad_client.py"
 FREEZE = (10.0, 5.0)  #: the frozen client's cycle: stopped, then running [s]
 
 
-def start_bad_client(kind: str, port: int) -> subprocess.Popen:
-    """``bench/bad_client.py KIND`` connected to the launcher's client endpoint, once ready."""
-    proc = subprocess.Popen([sys.executable, str(BAD_CLIENT), kind, "--connect", f"tcp/127.0.0.1:{port}"],
-                            stdout=subprocess.PIPE, text=True)
+def start_bad_client(kind: str, port: int, *options: str) -> subprocess.Popen:
+    """``bench/bad_client.py KIND [OPTIONS]`` connected to the launcher's client endpoint, once ready."""
+    proc = subprocess.Popen([sys.executable, str(BAD_CLIENT), kind, "--connect", f"tcp/127.0.0.1:{port}",
+                             *options], stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     if "ready" not in proc.stdout.readline():
         raise RuntimeError(f"bad client {kind} did not start")
@@ -184,6 +185,8 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--hog", action="store_true", help="a normal-priority busy loop on every core")
     ap.add_argument("--slow-client", action="store_true", help="a client at 20 ms per sample of JARA_ARM/**")
+    ap.add_argument("--reader", action="store_true",
+                    help="a client that takes every arm's 1 kHz Servo/posFeedback and keeps up")
     ap.add_argument("--frozen-client", action="store_true",
                     help="a client of Servo/posFeedback stopped 10 s of every 15")
     ap.add_argument("--robot", default="iiwa")
@@ -235,6 +238,8 @@ def main() -> int:
         stop = threading.Event()
         if args.slow_client:
             bad.append(start_bad_client("slow", port))
+        if args.reader:  # the bad clients' demand without their badness: a reader that keeps up
+            bad.append(start_bad_client("slow", port, "--key", ArmKeys(ANY_ARM).pos_feedback, "--delay-ms", "0"))
         freezer = None
         if args.frozen_client:
             bad.append(start_bad_client("frozen", port))
@@ -277,7 +282,8 @@ def main() -> int:
         shares[s.name] = shares.get(s.name, 0.0) + (s.ticks - before) / cpu._TICK / wall
     print(f"soak: {args.arms} arm(s) of {args.robot}, {wall / 60:.1f} min, hog {'on' if args.hog else 'off'}, "
           f"timing {args.timing}, slow client {'on' if args.slow_client else 'off'}, frozen client "
-          f"{'on' if args.frozen_client else 'off'}; ready after {ready_after:.1f} s")
+          f"{'on' if args.frozen_client else 'off'}, reader {'on' if args.reader else 'off'}; "
+          f"ready after {ready_after:.1f} s")
     print(f"{'arm':<5} {'cycles':>8} {'late>1T':>8} {'late %':>8} {'max ms':>7} {'overrun':>8} "
           f"{'underrun':>8} {'motions':>8} {'refused':>8} {'stalls':>7} {'longest':>8}")
     for a, t in tallies.items():
@@ -308,7 +314,7 @@ def main() -> int:
     if args.json:
         Path(args.json).write_text(json.dumps({
             "arms": args.arms, "minutes": wall / 60, "hog": args.hog, "slow_client": args.slow_client,
-            "frozen_client": args.frozen_client, "timing": args.timing,
+            "frozen_client": args.frozen_client, "reader": args.reader, "timing": args.timing,
             "ready_after_s": ready_after, "alarms": alarms, "warnings": warnings,
             "per_arm": {a: dataclasses.asdict(t) | {"stalls": stalls[a], "longest_stall_ms": longest[a]}
                         for a, t in tallies.items()},
