@@ -17,6 +17,12 @@ motion hand-overs of an arm. So ``jara-arm up`` runs two routers:
   :data:`GATEWAY_WAIT_BEFORE_CLOSE` is disconnected. So the worst a client can do is lose samples of
   its own and slow other clients; the bus sees one reader, the gateway, which never waits on anyone.
 
+The 1 kHz feedback crosses the bus in blocks (``Servo/posFeedbackBlock``, :data:`FEEDBACK_BLOCK_CYCLES
+<jara_arm.services.runtime.timing.FEEDBACK_BLOCK_CYCLES>` samples each) whoever subscribes: the gateway
+takes them and publishes the samples one by one on ``Servo/posFeedback`` to its clients, and only while
+one subscribes (:class:`FeedbackRelay`). So a client's 1 kHz stream costs the real-time side, the servo
+and the bus, one message per block, not one per cycle.
+
 On the bus, the only blocking publications (a low-level client's ``Servo/posCmd``, ``Traffic.STREAM``)
 are turned into best effort on their way to the gateway (by the gateway's Zenoh id), so a gateway that
 falls behind costs the bus nothing but those samples. A reply travels with its query's congestion
@@ -28,14 +34,24 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
+import queue
 import shutil
 import tempfile
+import threading
 from collections.abc import Iterator, Sequence
 
 import zenoh
 
+from jara_arm.schema.encoding import Encoding
+from jara_arm.schema.errors import JaraArmError
+from jara_arm.schema.keys import ANY_ARM, ArmKeys, arm_of
+from jara_arm.schema.messages import feedback_block_samples
 from jara_arm.schema.traffic import Traffic
+from jara_arm.services.runtime.wire import Publication
+
+log = logging.getLogger("jara_arm.launcher")
 
 #: The gateway's Zenoh id (hex of "jaragate"): the bus knows its link by it. One gateway per cell bus
 #: by default; give each further gateway its own (``--gateway-id``) and tell the bus every one.
@@ -95,6 +111,23 @@ def gateway_config(conf: zenoh.Config, zid: str = GATEWAY_ZID) -> None:
         # After the rule above, which it overrides on this one link (Zenoh applies the rules in order).
         {"id": "to-the-bus-reliably", "zids": [BUS_ZID], "messages": ["put", "delete"], "flows": ["egress"],
          "overwrite": {"congestion_control": "block"}}]))
+    _relay_access(conf, BUS_ZID)
+
+
+def _relay_access(conf: zenoh.Config, bus: str) -> None:
+    """The gateway's own ``Servo/posFeedback`` (:class:`FeedbackRelay`) never reaches the bus, nor do its
+    clients' subscriptions of that key: with two gateways on one bus, each serves its own clients, once.
+    An explicit deny wins over every allow of a secure cell's roles (Zenoh's access control)."""
+    acl = json.loads(conf.get_json("access_control"))
+    if not acl.get("enabled"):
+        acl = {"enabled": True, "default_permission": "allow", "rules": [], "subjects": [], "policies": []}
+    rule = "gateway relay stays off the bus"
+    acl["rules"] = [*(acl.get("rules") or []), {
+        "id": rule, "messages": ["put", "declare_subscriber"], "flows": ["egress"], "permission": "deny",
+        "key_exprs": [ArmKeys(ANY_ARM).pos_feedback]}]
+    acl["subjects"] = [*(acl.get("subjects") or []), {"id": "the cell bus", "zids": [bus]}]
+    acl["policies"] = [*(acl.get("policies") or []), {"id": rule, "rules": [rule], "subjects": ["the cell bus"]}]
+    conf.insert_json5("access_control", json.dumps(acl))
 
 
 def bus_config(conf: zenoh.Config, gateways: Sequence[str] = (GATEWAY_ZID,)) -> None:
@@ -123,3 +156,63 @@ def private_bus() -> Iterator[str]:
         yield f"unixsock-stream/{directory}/bus.sock"
     finally:
         shutil.rmtree(directory, ignore_errors=True)
+
+
+#: Blocks the relay holds for its thread before it drops the newest (100 a second per arm arrive).
+RELAY_QUEUE = 1024
+
+
+class FeedbackRelay:
+    """The gateway's ``Servo/posFeedback``: each ``Servo/posFeedbackBlock`` from the bus, sample by sample,
+    to the gateway's clients, while one of them subscribes (the arm's publisher here matches).
+
+    The Zenoh callback only queues the block; a thread of its own unpacks and publishes, so a slow relay
+    loses blocks of its own (counted in the log) and holds up no routing. A block that is not one is
+    dropped and logged once per arm.
+    """
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self._session = session
+        self._blocks: queue.Queue[zenoh.Sample | None] = queue.Queue(RELAY_QUEUE)
+        self._publications: dict[str, Publication] = {}
+        self._said: set[str] = set()
+        self.relayed = self.dropped = 0  # samples published; blocks lost to a full queue
+        self._sub = session.declare_subscriber(ArmKeys(ANY_ARM).pos_feedback_block, self._take)
+        self._thread = threading.Thread(target=self._run, name="feedback-relay", daemon=True)
+        self._thread.start()
+
+    def _take(self, sample: zenoh.Sample) -> None:
+        try:
+            self._blocks.put_nowait(sample)
+        except queue.Full:
+            self.dropped += 1
+
+    def _publication(self, arm: str) -> Publication:
+        pub = self._publications.get(arm)
+        if pub is None:
+            pub = self._publications[arm] = Publication(self._session, ArmKeys(arm).pos_feedback, Encoding.MSGPACK)
+        return pub
+
+    def _run(self) -> None:
+        while (sample := self._blocks.get()) is not None:
+            key = str(sample.key_expr)
+            try:
+                pub = self._publication(arm_of(key))
+                if not pub.publisher.matching_status.matching:
+                    continue
+                for payload in feedback_block_samples(sample.payload.to_bytes()):
+                    pub.put(payload)
+                    self.relayed += 1
+            except JaraArmError as exc:  # WireError included
+                if key not in self._said:
+                    self._said.add(key)
+                    log.warning("feedback relay: dropped a block on %s: %s", key, exc)
+
+    def close(self) -> None:
+        """Stop relaying: undeclare the subscription, then the thread and the publishers."""
+        self._sub.undeclare()
+        with contextlib.suppress(queue.Full):
+            self._blocks.put(None, timeout=1.0)
+        self._thread.join(timeout=2.0)
+        for pub in self._publications.values():
+            pub.close()

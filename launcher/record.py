@@ -24,7 +24,8 @@ from typing import TextIO
 
 import zenoh
 
-from jara_arm.schema.keys import ArmKeys, any_arm_every_key
+from jara_arm.schema.errors import JaraArmError
+from jara_arm.schema.keys import ArmKeys, any_arm_every_key, arm_of
 
 from .progress import Progress, human_size
 from .recording import RecordingWriter, to_json
@@ -71,14 +72,25 @@ def subscriptions(arms: tuple[str, ...]) -> list[str]:
     return [ArmKeys(arm).every_key for arm in arms] if arms else [any_arm_every_key()]
 
 
+def relayed(key: str) -> bool:
+    """``key`` carries the 1 kHz feedback in blocks for the client gateway (``Servo/posFeedbackBlock``): the
+    same samples as ``Servo/posFeedback``, which the gateway publishes and is recorded."""
+    try:
+        return key == ArmKeys(arm_of(key)).pos_feedback_block
+    except JaraArmError:
+        return False
+
+
 def drain(inbox: Inbox, writer: RecordingWriter, limit: int = _BATCH) -> int:
-    """Write up to ``limit`` waiting samples; how many were written."""
+    """Write up to ``limit`` waiting samples, not the feedback blocks (:func:`relayed`); how many were taken."""
     done = 0
     while done < limit and inbox.items:
         received, sample = inbox.items.popleft()
-        data = to_json(sample.payload.to_bytes(), sample.encoding)
-        writer.write(str(sample.key_expr), received, publish_time(sample, received), data)
         done += 1
+        key = str(sample.key_expr)
+        if not relayed(key):
+            writer.write(key, received, publish_time(sample, received),
+                         to_json(sample.payload.to_bytes(), sample.encoding))
     return done
 
 

@@ -19,7 +19,7 @@ from jara_arm.schema.keys import any_arm_alive, parse_alive
 from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
 from jara_arm.services.runtime.zenoh_args import default_endpoint, zenoh_config
 
-from .gateway import GATEWAY_ZID, bus_config, gateway_config
+from .gateway import GATEWAY_ZID, FeedbackRelay, bus_config, gateway_config
 from .refusals import RefusalLog
 from .supervisor import StopSignals
 
@@ -160,11 +160,14 @@ def run_router(settings: RouterSettings, signals: StopSignals) -> int:
     """``jara-arm router``: route until SIGINT/SIGTERM, reporting services that join or leave."""
     with open_router(settings) as session:
         presence = Presence(session)
+        relay = FeedbackRelay(session) if settings.gateway else None
         say(f"jara-arm: ready: router; listening on {', '.join(settings.endpoints())}")
         while not signals.stop.wait(0.1):
             for up, arm, service in presence.drain():
                 log.info("%s (%s) %s", service, arm, "joined" if up else "left")
         log.info("%s: stopping", signals.name)
+        if relay is not None:
+            relay.close()
         presence.close()
     log.info("router stopped")
     sys.stdout.flush()

@@ -31,7 +31,7 @@ def _message_types() -> Mapping[str, StructType[Any]]:
     """By key-table row (``key_info(key).key``): the type of every message published on it."""
     a = ArmKeys("ARM")
     pairs: tuple[tuple[str, StructType[Any]], ...] = (
-        (a.pos_cmd, w.TIMED_JOINT_POS), (a.pos_feedback, w.TIMED_JOINT_POS), (a.pos_target, w.TIMED_JOINT_POS),
+        (a.pos_cmd, w.TIMED_JOINT_POS), (a.pos_feedback, w.TIMED_JOINT_POS), (a.pos_feedback_block, messages.FEEDBACK_BLOCK), (a.pos_target, w.TIMED_JOINT_POS),
         (a.state, messages.STATE_MESSAGE), (a.alarm, messages.ALARM_EVENT), (a.log(), messages.LOG_RECORD),
         (a.servo_status, messages.SERVO_STATUS), (a.planner_progress, planner.PLANNER_PROGRESS),
         (a.servo_health, messages.LOOP_HEALTH), (a.monitor_alarms, alarms.ALARM_LIST),

@@ -129,10 +129,19 @@ class ArmKeys:
         return f"{self.root}/Servo/posCmd"
 
     @property
-    @_key('publisher', 'servo', '`TimedJointPos`, every cycle', KeyEncoding.MSGPACK, Traffic.FEEDBACK)
+    @_key('publisher', 'servo', '`TimedJointPos`, every cycle (to a client gateway\'s clients: the gateway, from '
+          '`Servo/posFeedbackBlock`)', KeyEncoding.MSGPACK, Traffic.FEEDBACK)
     def pos_feedback(self) -> str:
         """``TimedJointPos`` measured every cycle by the servo."""
         return f"{self.root}/Servo/posFeedback"
+
+    @property
+    @_key('publisher', 'servo', '`FeedbackBlock`, every `FEEDBACK_BLOCK_CYCLES` cycles, while a client gateway '
+          'takes it (internal: the gateway publishes its samples on `Servo/posFeedback`)',
+          KeyEncoding.MSGPACK, Traffic.FEEDBACK)
+    def pos_feedback_block(self) -> str:
+        """``FeedbackBlock``: the ``posFeedback`` samples of the last few cycles, for the client gateway."""
+        return f"{self.root}/Servo/posFeedbackBlock"
 
     @property
     @_key('publisher', 'servo', '`TimedJointPos`, each cycle that follows a command, only with the servo\'s '

@@ -13,7 +13,7 @@ import msgpack
 
 from . import wire_types as w
 from .errors import WireError
-from .types import Alarm, LimitValue, Time
+from .types import Alarm, LimitValue, Time, TimedJointPos
 from .wire_types import StructType, struct, wire
 
 
@@ -143,11 +143,22 @@ class ServoWorld:
                                            doc="the model's own boxes, then the servo's --obstacle ones")
 
 
+@dataclasses.dataclass(frozen=True)
+class FeedbackBlock:
+    """``Servo/posFeedbackBlock``: the servo's ``Servo/posFeedback`` samples of the last few cycles, oldest
+    first, for the client gateway, which publishes them one by one on ``Servo/posFeedback`` to its clients
+    (``launcher/gateway.py``): on the cell bus the 1 kHz stream costs one message per block, not per cycle."""
+
+    samples: tuple[TimedJointPos, ...] = wire(w.SeqType("TimedJointPosSeq", w.TIMED_JOINT_POS))
+
+
 STATE_MESSAGE = struct(StateMessage, strict=False, doc="State bits; extra members may follow.")
 ALARM_EVENT = struct(AlarmEvent, strict=False)
 LOG_RECORD = struct(LogRecord, strict=False)
 SERVO_STATUS = struct(ServoStatus, strict=False, doc="Internal: servo loop status, published every few cycles.")
 LOOP_HEALTH = struct(LoopHealth, strict=False, doc="Internal: servo loop timing over the last window (about 1 s).")
+FEEDBACK_BLOCK = struct(FeedbackBlock, strict=False, doc="Internal: consecutive Servo/posFeedback samples, oldest "
+                        "first, for the client gateway.")
 CALL_TRACE = struct(CallTrace, strict=False, doc="A call answered on Common, Middle, Servo/Common or Monitor/Common "
                     "and its reply, as the serving service saw them.")
 SERVO_WORLD = struct(ServoWorld, strict=False, doc="Internal: the servo's robot model and obstacles, Servo/world.")
@@ -160,6 +171,26 @@ def timed_joint_pos_payload(time_ns: int, pos: list[float]) -> bytes:
                                     "pos": pos})
     return payload
 
+
+
+def feedback_block_payload(samples: list[tuple[int, list[float]]]) -> bytes:
+    """MessagePack ``FeedbackBlock`` of ``(time [ns], pos)`` samples, as :func:`timed_joint_pos_payload`
+    builds each; tested to equal ``encode_message(FEEDBACK_BLOCK, ...)``."""
+    payload: bytes = msgpack.packb({"samples": [
+        {"tm": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "pos": pos} for ns, pos in samples]})
+    return payload
+
+
+def feedback_block_samples(payload: bytes) -> list[bytes]:
+    """The MessagePack ``TimedJointPos`` of each sample of a ``FeedbackBlock``, oldest first: byte for byte
+    what :func:`timed_joint_pos_payload` gives for it. Raises WireError for anything else."""
+    try:
+        samples = msgpack.unpackb(payload)["samples"]
+        return [msgpack.packb(w.TIMED_JOINT_POS.encode(w.TIMED_JOINT_POS.decode(s, "samples[]"))) for s in samples]
+    except WireError:
+        raise
+    except Exception as exc:  # not MessagePack, not a map, no samples
+        raise WireError("samples", f"not a FeedbackBlock: {exc}") from None
 
 
 def servo_status_payload(status: ServoStatus) -> bytes:
@@ -178,5 +209,5 @@ def servo_status_payload(status: ServoStatus) -> bytes:
 #: Every message type, for the generated JSON Schema.
 MESSAGES: tuple[StructType[Any], ...] = (
     w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_STATUS, LOOP_HEALTH, CALL_TRACE,
-    WORLD_BOX, SERVO_WORLD,
+    WORLD_BOX, SERVO_WORLD, FEEDBACK_BLOCK,
 )

@@ -35,6 +35,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
+from jara_arm.services.runtime.realtime import realtime_thread
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 
@@ -316,3 +317,18 @@ class LaunchedArm:
             state = f"state unknown ({exc})"
         tail = "\n".join(self.proc.lines[-lines:]) if self.proc is not None else ""
         return f"{state}\n{tail}"
+
+
+#: SCHED_FIFO priority of the tests' low-level streams and timed waits: below the servo's clock (40) and the cell bus (35).
+STREAM_PRIORITY = 30
+
+
+@contextlib.contextmanager
+def realtime_section(priority: int) -> Iterator[None]:
+    """The calling thread at SCHED_FIFO ``priority`` meanwhile, where permitted (as it was, otherwise)."""
+    raised = realtime_thread(priority, "a test's timed section")
+    try:
+        yield
+    finally:
+        if raised:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))

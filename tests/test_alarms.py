@@ -42,12 +42,12 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MOTION_SETTINGS
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, Time, TimedJointPos, hg_matrix
-from jara_arm.services.runtime.realtime import realtime_thread
 from jara_arm.services.runtime.timing import SAME_HOST
 from jara_arm.services.runtime.wire import Publication, decode_sample
 from jara_arm.services.servo.control import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
-from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
+from .support import (STREAM_PRIORITY, Client, Proc, client_session, endpoint, free_port, realtime_section, wait_alive,
+                      wait_until)
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -287,21 +287,6 @@ class System:
         self.ok(self.common(OP.servoON))
         self.goto(READY)
         assert self.common(OP.getActiveAlarm)["alarms"] == ()
-
-
-#: SCHED_FIFO priority of the tests' low-level streams: below the servo's clock (40) and the cell bus (35).
-STREAM_PRIORITY = 30
-
-
-@contextlib.contextmanager
-def realtime_section(priority: int) -> Iterator[None]:
-    """The calling thread at SCHED_FIFO ``priority`` meanwhile, where permitted (as it was, otherwise)."""
-    raised = realtime_thread(priority, "the test's position stream")
-    try:
-        yield
-    finally:
-        if raised:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
 @contextlib.contextmanager

@@ -16,6 +16,7 @@ import math
 import msgpack
 import numpy as np
 import pytest
+import zenoh
 
 from jara_arm.robots import Obstacle, robot
 from jara_arm.schema import codec
@@ -34,7 +35,7 @@ from jara_arm.services.planner.trajectory import PlannedMotion
 from jara_arm.services.runtime.rpc import answer
 
 from .local_servo import LocalServo
-from .support import motion_settings, wait_until
+from .support import STREAM_PRIORITY, motion_settings, realtime_section, wait_until
 from .test_middle import HOLD_WINDOW, TOL_PATH, line_deviation, rel
 from .test_middle import Arm as MiddleArm
 
@@ -324,9 +325,20 @@ class Arm(MiddleArm):
         return self.points(self.servo_time.sample()[1][None])[0]
 
     def when_within(self, corner: np.ndarray, radius: float) -> None:
-        """Until the flange is within ``radius`` [m] of ``corner``."""
-        wait_until(lambda: np.linalg.norm(self.flange_now() - corner) < radius, 10.0, 0.0,
-                   f"the flange within {radius * 1e3:.0f} mm of the corner")
+        """Until a feedback sample has the flange within ``radius`` [m] of ``corner``. Every sample is looked
+        at, and the wait runs real-time: a test thread that polled the newest sample beside busy loops missed
+        the 0.1 s the flange spends there (a busy-loop CI run timed out waiting)."""
+        session = self.client.session
+        with session.declare_subscriber(self.client.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 15)) as fb, \
+                realtime_section(STREAM_PRIORITY):
+            def near() -> bool:
+                while (s := fb.try_recv()) is not None:
+                    q = np.array(codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()).pos)
+                    if np.linalg.norm(self.points(q[None])[0] - corner) < radius:
+                        return True
+                return False
+
+            wait_until(near, 10.0, 1e-3, f"the flange within {radius * 1e3:.0f} mm of the corner")
 
 
 @pytest.fixture(scope="module", params=["iiwa", "panda"])

@@ -302,7 +302,8 @@ def test_bash_completes_commands_operations_keys_and_conditions() -> None:
     assert bash_complete(["jara-arm", "call", "servoON", "se"]) == []  # the JSON is not an operation
     assert bash_complete(["jara-arm", "call", "--ser"]) == ["--servo"]
     assert bash_complete(["jara-arm", "call", "--sec"]) == ["--secure"]
-    assert bash_complete(["jara-arm", "echo", "Servo/pos"]) == ["Servo/posCmd", "Servo/posFeedback", "Servo/posTarget"]
+    assert bash_complete(["jara-arm", "echo", "Servo/pos"]) == ["Servo/posCmd", "Servo/posFeedback", "Servo/posFeedbackBlock",
+                                                                "Servo/posTarget"]
     assert "log/servo" in bash_complete(["jara-arm", "echo", "log/"])
     assert bash_complete(["jara-arm", "wait", "no"]) == ["no-alarm"]
 

@@ -16,6 +16,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 import zenoh
@@ -27,6 +28,7 @@ from jara_arm.schema import messages
 from jara_arm.schema.keys import Service, any_arm_alarm, any_arm_every_key
 from jara_arm.schema.operations import OP
 from jara_arm.schema.roles import Role
+from jara_arm.services.runtime.timing import FEEDBACK_BLOCK_CYCLES
 from jara_arm.services.runtime.wire import decode_sample
 
 from .support import LAUNCHER, Proc, client_session, endpoint, free_port, launched, wait_until
@@ -142,6 +144,37 @@ def received(proc: Proc) -> int:
     """What the bad client said it received so far (samples or replies)."""
     counts = [int(line.split()[2]) for line in proc.lines if line.startswith("bad client: ")]
     return counts[-1] if counts else 0
+
+
+def test_through_the_gateway_the_feedback_is_every_sample_of_the_blocks_in_order(cell: tuple[Cell, int]) -> None:
+    """A client of the gateway gets ``Servo/posFeedback`` sample by sample while the bus carries blocks of
+    ``FEEDBACK_BLOCK_CYCLES``: what it gets is a run of the blocks' samples, byte for byte, in order, none
+    missing, one per servo cycle."""
+    c, _ = cell
+    keys, session = c.client.keys, c.client.session
+    # The blocks first: the first sample the client gets is then in a block the test has.
+    with session.declare_subscriber(keys.pos_feedback_block, zenoh.handlers.FifoChannel(1 << 12)) as blocks, \
+            session.declare_subscriber(keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 15)) as fb:
+        c.swing(2.0)
+        got: list[bytes] = []
+        sent: list[bytes] = []
+
+        def enough() -> bool:
+            while (s := fb.try_recv()) is not None:
+                got.append(s.payload.to_bytes())
+            return len(got) > 2000
+
+        wait_until(enough, 10, what="2,000 feedback samples through the gateway")
+        while (b := blocks.try_recv()) is not None:
+            samples = messages.feedback_block_samples(b.payload.to_bytes())
+            assert len(samples) == FEEDBACK_BLOCK_CYCLES
+            sent += samples
+    first = sent.index(got[0])  # the client's subscription came first: its first sample is in a block
+    run = got[:len(sent) - first]
+    assert len(run) > 1000 and run == sent[first:first + len(run)]
+    tm = np.array([[m["tm"]["sec"], m["tm"]["nsec"]] for m in map(msgpack.unpackb, run)], dtype=np.int64)
+    ns = tm[:, 0] * 1_000_000_000 + tm[:, 1]
+    assert np.all(np.diff(ns) >= robots.robot(ROBOT).cmd_cycle_ms * 1_000_000)  # one sample per cycle
 
 
 def test_a_slow_subscriber_of_everything_hurts_nobody(cell: tuple[Cell, int]) -> None:

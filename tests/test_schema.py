@@ -220,6 +220,20 @@ def test_fast_feedback_encoder_equals_the_generic_one():
     assert messages.timed_joint_pos_payload(t_ns, pos) == generic
 
 
+def test_a_feedback_block_is_its_samples_byte_for_byte():
+    """The servo's block encoder equals the generic one, and the gateway's unpacking gives each sample as the
+    servo publishes it alone; anything else is a WireError."""
+    samples = [(1_795_331_203_250_143_514 + k * 1_000_000, [0.1 * k, -2.0, 3.5e-9]) for k in range(10)]
+    block = messages.feedback_block_payload(samples)
+    generic = codec.encode_message(messages.FEEDBACK_BLOCK, messages.FeedbackBlock(tuple(
+        TimedJointPos(Time(ns // 1_000_000_000, ns % 1_000_000_000), tuple(pos)) for ns, pos in samples)))
+    assert block == generic
+    assert messages.feedback_block_samples(block) == [messages.timed_joint_pos_payload(ns, p) for ns, p in samples]
+    for bad in (b"\xc1", msgpack.packb([1]), msgpack.packb({"samples": [{"tm": 1, "pos": []}]})):
+        with pytest.raises(WireError):
+            messages.feedback_block_samples(bad)
+
+
 def test_fast_status_encoder_equals_the_generic_one():
     st = messages.ServoStatus(Time(1_795_331_203, 250_143_514), True, False, True, 3, 10_001, 10_004, 2,
                               (0.1, -0.2), (1.5, -30.25), (0.0, 1e-9), (LimitValue(2.9, -2.9), LimitValue(1.0, -1.5)),

@@ -50,6 +50,7 @@ from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.monitor_link import AlarmListCopy
 from jara_arm.services.runtime.timing import (
+    FEEDBACK_BLOCK_CYCLES,
     HEALTH_EVERY,
     SAME_HOST,
     STATUS_EVERY,
@@ -170,6 +171,14 @@ class ServoLoop:
         self._fb_matching = enter(self._fb_pub.publisher.declare_matching_listener(zenoh.handlers.FifoChannel(64)))
         self._fb_wanted = self._fb_pub.publisher.matching_status.matching
         self._fb_put = self._fb_pub.publisher.put  # every cycle: the labelled publisher's put, no wrapper call
+        # While a client gateway takes the feedback in blocks, it serves its clients sample by sample, and
+        # the per-sample publication stops: whoever subscribes through a gateway (a wildcard reaches this
+        # publisher too), the bus carries one message per block.
+        block_pub = enter(Publication(session, keys.pos_feedback_block, Encoding.MSGPACK))
+        self._block_matching = enter(block_pub.publisher.declare_matching_listener(zenoh.handlers.FifoChannel(64)))
+        self._block_wanted = block_pub.publisher.matching_status.matching
+        self._block_put = block_pub.publisher.put
+        self._block: list[tuple[int, list[float]]] = []  # (tm [ns], joints) since the last block
         # Opt-in: at 1 kHz beside the feedback it doubled what a JARA_ARM/** recorder takes, more than
         # `jara-arm record` kept up with on a 2-core machine.
         self._target_pub = enter(Publication(session, keys.pos_target, Encoding.MSGPACK)) if publish_targets else None
@@ -322,7 +331,15 @@ class ServoLoop:
             self.state_bits = self._bits(self._vel_list)
         while (matching := self._fb_matching.try_recv()) is not None:
             self._fb_wanted = matching.matching
-        if self._fb_wanted:
+        while (matching := self._block_matching.try_recv()) is not None:
+            self._block_wanted = matching.matching
+            self._block = []
+        if self._block_wanted:
+            self._block.append((tm_ns, self._pos_list))  # a new list each cycle the arm moves: kept, not copied
+            if len(self._block) >= FEEDBACK_BLOCK_CYCLES:
+                self._block_put(messages.feedback_block_payload(self._block))
+                self._block = []
+        elif self._fb_wanted:
             self._fb_put(messages.timed_joint_pos_payload(tm_ns, self._pos_list))
         if self._target_matching is not None:
             while (matching := self._target_matching.try_recv()) is not None:
