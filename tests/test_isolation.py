@@ -25,7 +25,7 @@ from jara_arm import robots
 from jara_arm.launcher.certs import init_cell, issue
 from jara_arm.launcher.client import ArmClient
 from jara_arm.schema import messages
-from jara_arm.schema.keys import Service, any_arm_alarm, any_arm_every_key
+from jara_arm.schema.keys import ArmKeys, Service, any_arm_alarm, any_arm_every_key
 from jara_arm.schema.operations import OP
 from jara_arm.schema.roles import Role
 from jara_arm.services.runtime.timing import FEEDBACK_BLOCK_CYCLES
@@ -175,6 +175,39 @@ def test_through_the_gateway_the_feedback_is_every_sample_of_the_blocks_in_order
     tm = np.array([[m["tm"]["sec"], m["tm"]["nsec"]] for m in map(msgpack.unpackb, run)], dtype=np.int64)
     ns = tm[:, 0] * 1_000_000_000 + tm[:, 1]
     assert np.all(np.diff(ns) >= robots.robot(ROBOT).cmd_cycle_ms * 1_000_000)  # one sample per cycle
+
+
+def _feedback_times(session: zenoh.Session, arm: str, count: int) -> np.ndarray:
+    """[ns] the ``tm`` of ``count`` consecutive ``Servo/posFeedback`` samples as ``session`` gets them."""
+    got: list[int] = []
+    with session.declare_subscriber(ArmKeys(arm).pos_feedback, zenoh.handlers.FifoChannel(1 << 15)) as fb:
+        def enough() -> bool:
+            while (s := fb.try_recv()) is not None:
+                tm = msgpack.unpackb(s.payload.to_bytes())["tm"]
+                got.append(tm["sec"] * 1_000_000_000 + tm["nsec"])
+            return len(got) >= count
+
+        wait_until(enough, 20, what=f"{count} feedback samples")
+    return np.array(got)
+
+
+def test_two_gateways_each_serve_their_own_clients_every_sample_once() -> None:
+    """A second client gateway on the same bus (``up --bus-listen``, ``router --gateway --gateway-id``): a
+    client of each gets the feedback once per servo cycle. Without the relay's access rule, each gateway's
+    samples also reached the other's clients through the bus: every sample twice."""
+    bus, second = free_port(), free_port()
+    with launched("--robot", ROBOT, "--bus-listen", endpoint(bus)) as (_, port):
+        gateway = Proc([*LAUNCHER, "router", "--gateway", "--gateway-id", "6a61726167617466", "--listen",
+                        endpoint(second), "--connect", endpoint(bus)])
+        try:
+            gateway.wait_for_line("ready", timeout=30)
+            with client_session(port) as a, client_session(second) as b:
+                ArmClient(b).wait_alive((Service.SERVO,))
+                for session in (a, b):
+                    ns = _feedback_times(session, "arm0", 500)
+                    assert np.all(np.diff(ns) > 0), "a sample came twice (or out of order)"
+        finally:
+            gateway.stop(signal.SIGINT)
 
 
 def test_a_slow_subscriber_of_everything_hurts_nobody(cell: tuple[Cell, int]) -> None:
