@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -389,6 +390,15 @@ def main() -> int:
                 for line in out.splitlines():
                     if "planned in" in line and ("Linear" in line or "Circular" in line) or "WARNING" in line:
                         print("planner log:", line.split(": ", 1)[-1])
+                # The head's share of request -> first command; the rest is the hops and the servo's cycle.
+                heads = np.array([[float(g) for g in m.groups()] for m in re.finditer(
+                    r"head planned in ([0-9.]+) ms \(([0-9.]+) before it began, ([0-9.]+) planning it, "
+                    r"([0-9.]+) handing it over\)", out)])
+                if len(heads):
+                    med = np.median(heads, axis=0)
+                    print(f"planner log: head ready {med[0]:.1f} ms after the planner took the request (median of "
+                          f"{len(heads)}, max {heads[:, 0].max():.1f}): {med[1]:.1f} before it began (the whole "
+                          f"sent to the planning process), {med[2]:.1f} planning it, {med[3]:.1f} handing it over")
             else:
                 held = [line for line in out.splitlines() if "held at its last sample" in line]
                 print(f"servo log: an early start's head held at its last sample {len(held)} times")

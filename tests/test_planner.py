@@ -137,8 +137,10 @@ class Rig:
             MOTION_REQUEST, req), timeout=20.0))
         assert len(replies) == 1 and replies[0].ok is not None, replies
         reply: PlanReply = codec.decode_message(PLAN_REPLY, replies[0].ok.payload.to_bytes())
-        if reply.id == ReturnCode.OK:  # the reply shows the queue it left: the motion in it
-            assert reply.motion > 0 and reply.progress.queued[-1] == reply.motion, reply.progress
+        if reply.id == ReturnCode.OK:  # the reply shows the queue it left: the motion in it, or done (one sample)
+            p = reply.progress
+            assert reply.motion > 0 and (p.queued[-1:] == (reply.motion,) or p.lastDone >= reply.motion), (
+                reply.motion, reply.duration, p)
         return Answer(reply.motion, reply.id, reply.comment, reply.endJoints, reply.duration)
 
     def ok(self, op: str, args: dict | None = None, **settings: Any) -> Answer:
