@@ -167,14 +167,15 @@ class FeedbackRelay:
     to the gateway's clients, while one of them subscribes (the arm's publisher here matches).
 
     The Zenoh callback only queues the block; a thread of its own unpacks and publishes, so a slow relay
-    loses blocks of its own (counted in the log) and holds up no routing. A block that is not one is
-    dropped and logged once per arm.
+    loses blocks of its own (:attr:`dropped`) and holds up no routing. A block that is not one, or that
+    cannot be published, is dropped and logged once per key.
     """
 
     def __init__(self, session: zenoh.Session) -> None:
         self._session = session
         self._blocks: queue.Queue[zenoh.Sample | None] = queue.Queue(RELAY_QUEUE)
         self._publications: dict[str, Publication] = {}
+        self._lock = threading.Lock()
         self._said: set[str] = set()
         self.relayed = self.dropped = 0  # samples published; blocks lost to a full queue
         self._sub = session.declare_subscriber(ArmKeys(ANY_ARM).pos_feedback_block, self._take)
@@ -188,10 +189,16 @@ class FeedbackRelay:
             self.dropped += 1
 
     def _publication(self, arm: str) -> Publication:
-        pub = self._publications.get(arm)
-        if pub is None:
-            pub = self._publications[arm] = Publication(self._session, ArmKeys(arm).pos_feedback, Encoding.MSGPACK)
-        return pub
+        with self._lock:  # the relay's thread and :meth:`wanted`'s caller
+            pub = self._publications.get(arm)
+            if pub is None:
+                pub = self._publications[arm] = Publication(self._session, ArmKeys(arm).pos_feedback,
+                                                            Encoding.MSGPACK)
+            return pub
+
+    def wanted(self, arm: str) -> bool:
+        """Whether a subscriber of ``arm``'s ``Servo/posFeedback`` is there to relay to."""
+        return self._publication(arm).publisher.matching_status.matching
 
     def _run(self) -> None:
         while (sample := self._blocks.get()) is not None:
@@ -203,7 +210,7 @@ class FeedbackRelay:
                 for payload in feedback_block_samples(sample.payload.to_bytes()):
                     pub.put(payload)
                     self.relayed += 1
-            except JaraArmError as exc:  # WireError included
+            except (JaraArmError, zenoh.ZError) as exc:  # a block that is not one (WireError), a put refused
                 if key not in self._said:
                     self._said.add(key)
                     log.warning("feedback relay: dropped a block on %s: %s", key, exc)

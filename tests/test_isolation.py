@@ -24,12 +24,14 @@ import zenoh
 from jara_arm import robots
 from jara_arm.launcher.certs import init_cell, issue
 from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.gateway import FeedbackRelay
 from jara_arm.schema import messages
 from jara_arm.schema.keys import ArmKeys, Service, any_arm_alarm, any_arm_every_key
 from jara_arm.schema.operations import OP
 from jara_arm.schema.roles import Role
 from jara_arm.services.runtime.timing import FEEDBACK_BLOCK_CYCLES
 from jara_arm.services.runtime.wire import decode_sample
+from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 from .support import LAUNCHER, Proc, client_session, endpoint, free_port, launched, wait_until
 
@@ -175,6 +177,30 @@ def test_through_the_gateway_the_feedback_is_every_sample_of_the_blocks_in_order
     tm = np.array([[m["tm"]["sec"], m["tm"]["nsec"]] for m in map(msgpack.unpackb, run)], dtype=np.int64)
     ns = tm[:, 0] * 1_000_000_000 + tm[:, 1]
     assert np.all(np.diff(ns) >= robots.robot(ROBOT).cmd_cycle_ms * 1_000_000)  # one sample per cycle
+
+
+def test_the_relay_drops_what_is_not_a_block_and_goes_on() -> None:
+    """``FeedbackRelay`` in a router session of its own: a payload on a block key that is no block is dropped
+    and said once; the blocks before and after it reach a subscriber sample by sample, in order."""
+    port = free_port()
+    with zenoh.open(zenoh_config("router", listen=[endpoint(port)])) as router, client_session(port) as client:
+        relay = FeedbackRelay(router)
+        keys = ArmKeys("arm0")
+        with client.declare_subscriber(keys.pos_feedback, zenoh.handlers.FifoChannel(256)) as fb:
+            wait_until(lambda: relay.wanted("arm0"), 10, what="the relay's publisher matching the subscriber")
+            blocks = [[(1_000_000 * (10 * b + k), [0.1 * b, float(k)]) for k in range(10)] for b in range(2)]
+            router.put(keys.pos_feedback_block, messages.feedback_block_payload(blocks[0]))
+            router.put(keys.pos_feedback_block, b"not a block")
+            router.put(keys.pos_feedback_block, messages.feedback_block_payload(blocks[1]))
+            got: list[bytes] = []
+
+            def all_twenty() -> bool:
+                got.extend(s.payload.to_bytes() for s in iter(fb.try_recv, None))
+                return len(got) >= 20
+
+            wait_until(all_twenty, 10, what="both blocks' samples")
+        assert got == [messages.timed_joint_pos_payload(ns, p) for block in blocks for ns, p in block]
+        relay.close()
 
 
 def _feedback_times(session: zenoh.Session, arm: str, count: int) -> np.ndarray:
