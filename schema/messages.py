@@ -164,11 +164,15 @@ CALL_TRACE = struct(CallTrace, strict=False, doc="A call answered on Common, Mid
 SERVO_WORLD = struct(ServoWorld, strict=False, doc="Internal: the servo's robot model and obstacles, Servo/world.")
 
 
+def _timed_joint_pos(time_ns: int, pos: list[float]) -> dict[str, Any]:
+    """``TimedJointPos`` in its wire form, built directly (the fast paths below)."""
+    return {"tm": {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000}, "pos": pos}
+
+
 def timed_joint_pos_payload(time_ns: int, pos: list[float]) -> bytes:
     """MessagePack ``TimedJointPos`` for the servo's 1 kHz feedback, without the generic
     encoder's per-member work; tested to equal ``encode_message(TIMED_JOINT_POS, ...)``."""
-    payload: bytes = msgpack.packb({"tm": {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000},
-                                    "pos": pos})
+    payload: bytes = msgpack.packb(_timed_joint_pos(time_ns, pos))
     return payload
 
 
@@ -176,8 +180,7 @@ def timed_joint_pos_payload(time_ns: int, pos: list[float]) -> bytes:
 def feedback_block_payload(samples: list[tuple[int, list[float]]]) -> bytes:
     """MessagePack ``FeedbackBlock`` of ``(time [ns], pos)`` samples, as :func:`timed_joint_pos_payload`
     builds each; tested to equal ``encode_message(FEEDBACK_BLOCK, ...)``."""
-    payload: bytes = msgpack.packb({"samples": [
-        {"tm": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}, "pos": pos} for ns, pos in samples]})
+    payload: bytes = msgpack.packb({"samples": [_timed_joint_pos(ns, pos) for ns, pos in samples]})
     return payload
 
 
