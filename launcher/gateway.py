@@ -192,8 +192,10 @@ class FeedbackRelay:
         with self._lock:  # the relay's thread and :meth:`wanted`'s caller
             pub = self._publications.get(arm)
             if pub is None:
+                # Not express: a block's samples leave in one batch. Sent one by one (express), a burst
+                # of ten outran the client's transmission queue beside busy cores and lost samples.
                 pub = self._publications[arm] = Publication(self._session, ArmKeys(arm).pos_feedback,
-                                                            Encoding.MSGPACK)
+                                                            Encoding.MSGPACK, express=False)
             return pub
 
     def wanted(self, arm: str) -> bool:
