@@ -41,6 +41,7 @@ import dataclasses
 import logging
 import re
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -180,7 +181,7 @@ class _Parsers:
         self.call.add_argument("--servo", action="store_true",
                                help="ask the servo (Servo/Common/<op>) instead of the command service")
         self.call.add_argument("--timeout", type=positive_float, default=10.0, metavar="S",
-                               help="wait this long for the reply [s] (default: 10)")
+                               help="wait this long to join the network, and then for the reply [s] (default: 10)")
         self.call.add_argument("op", metavar="OP", help="the operation's name (IDL, or Ext), e.g. movePTPJointAbs")
         self.call.add_argument("json", nargs="?", metavar="JSON",
                                help="the in parameters as a JSON object (default: none)")
@@ -199,7 +200,8 @@ class _Parsers:
         ends.add_argument("--once", action="store_true", help="exit after the first sample")
         ends.add_argument("--count", type=positive_int, metavar="N", help="exit after N samples")
         self.echo.add_argument("--timeout", type=positive_float, metavar="S",
-                               help="exit 1 if the samples asked for did not come within S seconds")
+                               help="exit 1 if the samples asked for did not come within S seconds (joining the network "
+                               "included)")
         self.echo.add_argument("--show-key", action="store_true",
                                help='print {"key": ..., "value": ...} (for keys with wildcards)')
         _client_zenoh_arguments(self.echo)
@@ -222,7 +224,7 @@ class _Parsers:
         self.wait.add_argument("condition", choices=[c.value for c in Condition], metavar="CONDITION",
                                help=", ".join(c.value for c in Condition))
         self.wait.add_argument("--timeout", type=positive_float, default=60.0, metavar="S",
-                               help="give up after S seconds (default: 60)")
+                               help="give up after S seconds, joining the network included (default: 60)")
         self.wait.add_argument("--poll", type=positive_float, default=0.05, metavar="S",
                                help="look this often [s] (default: 0.05)")
         _client_zenoh_arguments(self.wait)
@@ -477,12 +479,14 @@ def _setup_logging(level: str) -> None:
     root.setLevel(level)
 
 
-def _open(args: argparse.Namespace, parser: argparse.ArgumentParser) -> zenoh.Session:
-    """A session on the network of the client options (exit 2 with the reason if it cannot be had)."""
+def _open(args: argparse.Namespace, parser: argparse.ArgumentParser,
+          join_within: float | None = None) -> zenoh.Session:
+    """A session on the network of the client options (exit 2 with the reason if it cannot be had), trying
+    for up to ``join_within`` [s] (a command with a timeout, started before the router listens)."""
     connect = args.connect or ([] if args.config else [default_endpoint(args.secure)])
     try:
         return zenoh.open(zenoh_config(args.mode, args.listen, connect, args.config, args.multicast,
-                                       args.secure, args.identity))
+                                       args.secure, args.identity, join_within))
     except CellError as exc:
         parser.error(str(exc))
     except zenoh.ZError as exc:
@@ -500,22 +504,31 @@ def _tool(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     except (CallError, EchoKeyError) as exc:
         print(f"jara-arm {name}: {exc}", file=sys.stderr)
         return USAGE_ERROR
-    session = _open(args, parser)
+    began = time.monotonic()
+    session = _open(args, parser, join_within=args.timeout if name in ("call", "echo", "wait") else None)
+    joining = time.monotonic() - began  # [s] of the command's timeout spent joining
+
+    def left(timeout: float) -> float:
+        return max(0.1, timeout - joining)
+
     signals = StopSignals()
     with session:
-        timeout = args.timeout if name == "call" else 2.0  # [s] per query
+        timeout = left(args.timeout) if name == "call" else 2.0  # [s] per query
         client = ArmClient(session, args.arm, timeout=timeout)
         try:
             if call is not None:
                 return run_call(client, call, sys.stdout, sys.stderr)
             if key is not None:
                 count = 1 if args.once else args.count
-                return run_echo(session, EchoSettings(key, args.rate, count, args.timeout, args.show_key),
+                return run_echo(session, EchoSettings(key, args.rate, count,
+                                                      None if args.timeout is None else left(args.timeout),
+                                                      args.show_key),
                                 signals.stop, sys.stdout, sys.stderr)
             if name == "state":
                 return run_state(client, signals.stop, sys.stdout, once=args.once, period=args.period,
                                  tty=sys.stdout.isatty())
-            return run_wait(client, Condition(args.condition), args.timeout, args.poll, signals.stop, sys.stderr)
+            return run_wait(client, Condition(args.condition), left(args.timeout), args.poll, signals.stop,
+                            sys.stderr)
         except ClientError as exc:
             # A router drops what a role may not do without a word to the client: silence.
             hint = (f" (in a secure cell this is also what identity {args.identity!r} gets for what its role "

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import socket
 import subprocess
 import sys
 import threading
@@ -39,7 +40,7 @@ from jara_arm.schema.operations import ALL, MIDDLE, OP
 from jara_arm.schema.types import Alarm, CarPosWithElbow, Time, hg_matrix
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import LaunchedArm, Proc, ServoTime, bash_complete, wait_until
+from .support import LaunchedArm, Proc, ServoTime, bash_complete, endpoint, free_port, wait_until
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 
@@ -433,3 +434,31 @@ def test_live_wait_times_out_non_zero_and_meets_what_holds(arm: Arm) -> None:
     assert time.monotonic() - t0 < 30
     assert arm.run("wait", "alive", "--timeout", "20").returncode == 0
     assert arm.run("wait", "no-alarm", "--timeout", "5").returncode == 0
+
+
+def test_a_command_with_a_timeout_keeps_trying_to_join_until_the_router_listens() -> None:
+    """``jara-arm echo --timeout`` started before the router: it is refused once, tries again, and prints
+    the sample once the router is up (it used to exit 2 at once: "cannot join the Zenoh network")."""
+    port = free_port()
+    keys = ArmKeys("t4")
+    with socket.create_server(("127.0.0.1", port)) as early:  # something that refuses Zenoh on the port
+        echo = subprocess.Popen([*LAUNCHER, "echo", "--arm", "t4", "state", "--once", "--timeout", "60",
+                                 "--connect", endpoint(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
+        try:
+            early.settimeout(60)
+            conn, _ = early.accept()  # its first try
+            conn.close()
+        except BaseException:
+            echo.kill()
+            raise
+    with zenoh.open(zenoh_config("router", listen=[endpoint(port)])) as router:
+        try:
+            while echo.poll() is None:  # until echo has joined, subscribed and printed one
+                router.put(keys.state, msgpack.packb({"state": 1}))
+                time.sleep(0.05)
+            out, err = echo.communicate()
+        finally:
+            echo.kill()
+    assert echo.returncode == 0, err
+    assert json.loads(out)["state"] == 1

@@ -22,6 +22,9 @@ MODES = ("peer", "client", "router")
 #: The port of the launcher's router (Zenoh's own default); ``tcp/`` for an open cell, ``tls/`` for a secure one.
 DEFAULT_PORT = 7447
 DEFAULT_HOST_PORT = f"127.0.0.1:{DEFAULT_PORT}"
+#: How often a session retries an endpoint while it may keep trying (``join_within``) [ms]: a router that
+#: comes up is joined within half a second.
+JOIN_RETRY = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
 
 
 def default_endpoint(secure: str | None) -> str:
@@ -52,8 +55,11 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = 
 
 def zenoh_config(mode: str = "peer", listen: Sequence[str] = (), connect: Sequence[str] = (),
                  config: str | None = None, multicast: bool = False, secure: str | None = None,
-                 identity: str | None = None) -> zenoh.Config:
-    """A Zenoh configuration from the shared settings; CellError if ``secure`` cannot be had."""
+                 identity: str | None = None, join_within: float | None = None) -> zenoh.Config:
+    """A Zenoh configuration from the shared settings; CellError if ``secure`` cannot be had.
+
+    ``join_within`` [s]: keep trying the ``connect`` endpoints this long before ``zenoh.open`` fails (a
+    client command started just before the launcher's router listens); by default one try."""
     if secure:
         if not identity:
             raise CellError("--secure needs --identity NAME: the certificate to present "
@@ -67,6 +73,9 @@ def zenoh_config(mode: str = "peer", listen: Sequence[str] = (), connect: Sequen
         conf.insert_json5("listen/endpoints", "[]")  # peers would otherwise listen on every interface
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if join_within is not None:
+        conf.insert_json5("connect/timeout_ms", json.dumps(max(1, round(join_within * 1e3))))
+        conf.insert_json5("connect/retry", json.dumps(JOIN_RETRY))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast)))
     if secure:
         assert identity is not None
