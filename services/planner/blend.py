@@ -31,7 +31,7 @@ import numpy as np
 import ruckig
 from numpy.typing import NDArray
 
-from .profile import ProfileLimits
+from .profile import ProfileError, ProfileLimits, calculate
 
 Joints = NDArray[np.float64]
 
@@ -105,24 +105,20 @@ def _input(q: Joints, dq: Joints, ddq: Joints, limits: JointLimits) -> ruckig.In
     return inp
 
 
-def _calculate(inp: ruckig.InputParameter, n: int) -> ruckig.Trajectory:
-    traj = ruckig.Trajectory(n)
+def _calculate(inp: ruckig.InputParameter) -> ruckig.Trajectory:
     try:
-        result = ruckig.Ruckig(n).calculate(inp, traj)
-    except ruckig.RuckigError as exc:
-        raise BlendError(f"Ruckig: {exc}") from None
-    if result not in (ruckig.Result.Working, ruckig.Result.Finished):
-        raise BlendError(f"Ruckig: {result}")
-    return traj
+        return calculate(inp)
+    except ProfileError as exc:
+        raise BlendError(str(exc)) from None
 
 
-def _whole_periods(inp: ruckig.InputParameter, n: int, dt: float) -> ruckig.Trajectory:
+def _whole_periods(inp: ruckig.InputParameter, dt: float) -> ruckig.Trajectory:
     """The time-optimal trajectory stretched to a whole number of periods (its last sample is its target)."""
-    traj = _calculate(inp, n)
+    traj = _calculate(inp)
     periods = math.ceil(traj.duration / dt - 1e-9)
     if abs(periods * dt - traj.duration) > 1e-12:
         inp.minimum_duration = periods * dt
-        traj = _calculate(inp, n)
+        traj = _calculate(inp)
         if abs(traj.duration - periods * dt) > 1e-9:
             raise BlendError(f"Ruckig could not stretch {traj.duration:.6f} s to {periods * dt:.6f} s")
     return traj
@@ -141,12 +137,11 @@ def joint_blend(start: tuple[Joints, Joints, Joints], end: tuple[Joints, Joints,
                 dt: float) -> JointTrajectory:
     """From state ``start`` to state ``end`` (q, dq, ddq, moving), time-optimal within ``limits``,
     time-synchronised; raises BlendError when Ruckig finds none."""
-    n = len(start[0])
     inp = _input(*start, limits)
     inp.target_position = end[0].tolist()
     inp.target_velocity = end[1].tolist()
     inp.target_acceleration = end[2].tolist()
-    return _sample(_whole_periods(inp, n, dt), dt, end)
+    return _sample(_whole_periods(inp, dt), dt, end)
 
 
 def cut_points(previous: NDArray[np.float64], following: NDArray[np.float64], radius: float) -> tuple[int, int]:

@@ -60,6 +60,7 @@ __all__ = [
     "ProfileError",
     "ProfileLimits",
     "ProfileSamples",
+    "calculate",
     "cartesian_path_speed",
     "continue_profile",
     "joint_path_speed",
@@ -251,17 +252,19 @@ def _input(limits: ProfileLimits, s: float, sd: float, sdd: float) -> ruckig.Inp
     return inp
 
 
-def _calculate(inp: ruckig.InputParameter) -> ruckig.Trajectory:
-    traj = ruckig.Trajectory(1)
+def calculate(inp: ruckig.InputParameter) -> ruckig.Trajectory:
+    """Ruckig's offline trajectory for ``inp`` (any number of DoFs); ProfileError if it has none."""
+    n = inp.degrees_of_freedom
+    traj = ruckig.Trajectory(n)
     try:
-        result = ruckig.Ruckig(1).calculate(inp, traj)  # offline: no delta_time needed
+        result = ruckig.Ruckig(n).calculate(inp, traj)  # offline: no delta_time needed
     except ruckig.RuckigError:
         # Ruckig 0.19 throws on some inputs exactly on a profile-type boundary (e.g. a
-        # rest-to-rest move of exactly v·aclTime, no cruise): a velocity limit 1e-12 tighter
-        # is off the boundary and changes the duration by ~1e-12 relative.
-        inp.max_velocity = [inp.max_velocity[0] * (1.0 - 1e-12)]
+        # rest-to-rest move of exactly v·aclTime, no cruise): velocity limits 1e-12 tighter
+        # are off the boundary and change the duration by ~1e-12 relative.
+        inp.max_velocity = [v * (1.0 - 1e-12) for v in inp.max_velocity]
         try:
-            result = ruckig.Ruckig(1).calculate(inp, traj)
+            result = ruckig.Ruckig(n).calculate(inp, traj)
         except ruckig.RuckigError as exc:
             raise ProfileError(f"Ruckig could not compute the profile: {exc}") from None
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
@@ -283,7 +286,7 @@ def move_profile(length: float, limits: ProfileLimits, s_start: float = 0.0) -> 
         return _at_rest(length, limits, length)
     inp = _input(limits, s_start, 0.0, 0.0)
     inp.target_position = [length]
-    traj = _calculate(inp)
+    traj = calculate(inp)
     return PathProfile(length, limits, s_start, 0.0, 0.0, length, float(traj.duration), traj)
 
 
@@ -304,7 +307,7 @@ def continue_profile(length: float, s: float, sd: float, sdd: float, limits: Pro
         return _at_rest(length, limits, length)
     inp = _input(limits, s, sd, sdd)
     inp.target_position = [length]
-    traj = _calculate(inp)
+    traj = calculate(inp)
     return PathProfile(length, limits, s, sd, sdd, length, float(traj.duration), traj)
 
 
@@ -333,14 +336,14 @@ def stop_profile(length: float, s: float, sd: float, sdd: float, limits: Profile
         return _at_rest(length, limits, length)
     inp = _input(limits, s, sd, sdd)
     inp.control_interface = ruckig.ControlInterface.Velocity
-    traj = _calculate(inp)
+    traj = calculate(inp)
     (s_stop,), _, _ = traj.at_time(float(traj.duration))
     if s_stop > length * (1.0 + _STOP_OVERSHOOT):
         # Not a state of a profile that ends at `length`: it cannot brake in time.
         # Brake onto the end instead (Ruckig may then exceed the path and come back).
         inp = _input(limits, s, sd, sdd)
         inp.target_position = [length]
-        traj = _calculate(inp)
+        traj = calculate(inp)
         s_stop = length
     # Braking from the deceleration phase of the running profile retraces it and
     # lands on the end up to rounding: clamp (at() clips s to [s, s_end]).
