@@ -41,6 +41,7 @@ from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
+from jara_arm.services.runtime.threads import LoopThread
 from jara_arm.services.runtime.timing import MONITOR_POLL, SAME_HOST, Health
 from jara_arm.services.runtime.wire import Publication, decode_sample, reply_message
 
@@ -115,8 +116,7 @@ class Monitor:
         self._dirty = True
         self._list_at = -float("inf")
         self._judge_after = 0.0  # [s] monotonic: staleness is judged from then on
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="alarm-monitor", daemon=True)
+        self._loop = LoopThread(self._run, "alarm-monitor")
 
     # -- life cycle ---------------------------------------------------------------
     def take_over(self, held: AlarmList | None) -> None:
@@ -133,15 +133,14 @@ class Monitor:
                     ", ".join(f"{format_code(a.code)} {a.description}" for a in held.alarms))
 
     def start(self) -> None:
-        self._thread.start()
+        self._loop.start()
 
     @property
     def alive(self) -> bool:
-        return self._thread.is_alive()
+        return self._loop.alive
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
+        self._loop.stop()
         self._reactions.close()
         self._entities.close()
 
@@ -152,10 +151,10 @@ class Monitor:
         return fut.result(timeout=timeout)
 
     # -- the loop -----------------------------------------------------------------
-    def _run(self) -> None:
+    def _run(self, stop: threading.Event) -> None:
         last = time.monotonic()
         stall_logged = -float("inf")
-        while not self._stop.wait(MONITOR_POLL):
+        while not stop.wait(MONITOR_POLL):
             self._pulse.beat()
             now = time.monotonic()
             if now - last > self.health.stall_after:

@@ -20,6 +20,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.planner import PLANNER_PROGRESS
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
+from jara_arm.services.runtime.threads import LoopThread
 from jara_arm.services.runtime.timing import WATCHER_POLL
 from jara_arm.services.runtime.wire import decode_sample
 
@@ -54,26 +55,24 @@ class Watcher:
                                                         zenoh.handlers.FifoChannel(_ALARMS_FIFO)))
         self._monitor = enter(session.liveliness().declare_subscriber(
             keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True))
-        self._stop = threading.Event()
         self._bad = 0  # malformed messages seen (logged once per kind)
-        self._thread = threading.Thread(target=self._run, name="command-watch", daemon=True)
+        self._loop = LoopThread(self._run, "command-watch")
 
     def start(self) -> None:
-        self._thread.start()
+        self._loop.start()
 
     @property
     def alive(self) -> bool:
-        return self._thread.is_alive()
+        return self._loop.alive
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
+        self._loop.stop()
         self._tracker.catch_up = None
         with self._drain_lock:  # a call's catch-up in progress ends before the subscribers close
             self._entities.close()
 
-    def _run(self) -> None:
-        while not self._stop.wait(WATCHER_POLL):
+    def _run(self, stop: threading.Event) -> None:
+        while not stop.wait(WATCHER_POLL):
             self._pulse.beat()
             self.drain()
 

@@ -47,6 +47,7 @@ from jara_arm.schema.motion import (
 from jara_arm.schema.planner import ControlAction, PlannerProgress
 from jara_arm.schema.types import Time
 from jara_arm.services.runtime.heartbeat import Pulse
+from jara_arm.services.runtime.threads import LoopThread
 from jara_arm.services.runtime.timing import SAME_HOST, STATUS_LISTEN, STOP_WAIT, WATCHER_POLL
 
 from .planning import PlanRefused
@@ -93,21 +94,19 @@ class Handover:
         self._head: _Head | None = None  # handed over early, not accepted yet
         self._started = Time.now()
         self._snapshot: PlannerProgress | None = None
-        self._stop_event = threading.Event()
-        self._thread = threading.Thread(target=self.run, name="planner-progress", daemon=True)
+        self._loop = LoopThread(self._relay, "planner-progress")
 
     # ------------------------------------------------------------------ life cycle
 
     def start(self) -> None:
-        self._thread.start()
+        self._loop.start()
 
     def close(self) -> None:
-        self._stop_event.set()
-        self._thread.join(timeout=2.0)
+        self._loop.stop()
 
     @property
     def alive(self) -> bool:
-        return self._thread.is_alive()
+        return self._loop.alive
 
     # ------------------------------------------------------------------ planning side
 
@@ -294,11 +293,11 @@ class Handover:
             self._news.notify_all()
             return True
 
-    def run(self) -> None:
+    def _relay(self, stop: threading.Event) -> None:
         """Relay ``Servo/motion`` to ``Planner/progress``: on every change, and every PROGRESS_PERIOD."""
         last: PlannerProgress | None = None
         last_at = 0.0
-        while not self._stop_event.is_set():
+        while not stop.is_set():
             self._pulse.beat()
             try:
                 self._refresh()
@@ -310,7 +309,7 @@ class Handover:
                     last, last_at = progress, now
             except Exception:  # the relay must outlive a bug: log it and go on
                 log.exception("progress relay iteration failed")
-            self._stop_event.wait(WATCHER_POLL)
+            stop.wait(WATCHER_POLL)
 
     def _progress(self, now: float) -> PlannerProgress:
         """The servo's progress as the planner's, numbered: ``seq`` grows when anything but the time
