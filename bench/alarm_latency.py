@@ -15,6 +15,7 @@ service. Hung-service figures include the hung bound ``Health.hung_after``
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 
@@ -30,12 +31,9 @@ SCENARIOS = {
     "jump": scenarios.test_position_stream_that_jumps,
     "joint-limit": scenarios.test_position_stream_that_leaves_the_joint_soft_limits,
     "cartesian-limit": scenarios.test_control_point_crosses_the_cartesian_soft_limits,
-    "servo-kill": scenarios.test_servo_killed_in_the_middle_of_a_motion,
-    "planner-kill": scenarios.test_planner_killed_in_the_middle_of_a_motion,
-    "servo-stop": scenarios.test_servo_hung_by_sigstop,
-    "planner-stop": scenarios.test_planner_hung_by_sigstop,
-    "command-kill": scenarios.test_command_killed_in_the_middle_of_a_motion,
-    "command-stop": scenarios.test_command_hung_by_sigstop,
+    **{f"{service.value}-{'kill' if how == 'kill' else 'stop'}": functools.partial(
+        scenarios.test_a_service_killed_or_hung_mid_motion_is_a_fault, service=service, how=how, code=code)
+       for service, how, code in (p.values for p in scenarios.FAULTS)},
     "monitor-kill": scenarios.test_monitor_killed_in_the_middle_of_a_motion,
     "monitor-stop": scenarios.test_monitor_hung_by_sigstop,
 }

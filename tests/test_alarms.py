@@ -646,45 +646,27 @@ def hang_mid_motion(arm: System, service: Service, code: AlarmCode) -> float:
     return cause
 
 
-def test_servo_killed_in_the_middle_of_a_motion(arm: System):
-    """Servo SIGKILL: FAULT 0x400; the launcher restarts it; clearable once its token is back."""
-    kill_mid_motion(arm, Service.SERVO, AlarmCode.SERVO_LOST)
-    # The simulated arm restarts at its ready pose (a real one would be held by its brakes).
-    check_back_to_work(arm)
+# What each service's loss or hang raises. The servo's kill is the one case without the smooth stop: the
+# simulated arm restarts at its ready pose (a real one would be held by its brakes).
+FAULTS = [
+    pytest.param(Service.SERVO, "kill", AlarmCode.SERVO_LOST, id="servo-SIGKILL-0x400"),
+    pytest.param(Service.PLANNER, "kill", AlarmCode.PLANNER_LOST, id="planner-SIGKILL-0x401"),
+    pytest.param(Service.COMMAND, "kill", AlarmCode.COMMAND_LOST, id="command-SIGKILL-0x402"),
+    pytest.param(Service.SERVO, "hang", AlarmCode.SERVO_HUNG, id="servo-SIGSTOP-0x410"),
+    pytest.param(Service.PLANNER, "hang", AlarmCode.PLANNER_HUNG, id="planner-SIGSTOP-0x411"),
+    pytest.param(Service.COMMAND, "hang", AlarmCode.COMMAND_HUNG, id="command-SIGSTOP-0x412"),
+]
 
 
-def test_planner_killed_in_the_middle_of_a_motion(arm: System):
-    """Planner SIGKILL: FAULT 0x401, the servo stops the arm smoothly and goes off; restarted."""
-    cause = kill_mid_motion(arm, Service.PLANNER, AlarmCode.PLANNER_LOST)
-    check_no_jump(arm, since=cause)
-    check_back_to_work(arm)
-
-
-def test_servo_hung_by_sigstop(arm: System):
-    """Servo SIGSTOP (token up, heartbeat silent): FAULT 0x410; after SIGCONT the arm stops, smoothly."""
-    cause = hang_mid_motion(arm, Service.SERVO, AlarmCode.SERVO_HUNG)
-    check_no_jump(arm, since=cause)
-    check_back_to_work(arm)
-
-
-def test_planner_hung_by_sigstop(arm: System):
-    """Planner SIGSTOP mid-motion: FAULT 0x411; the servo stops the arm from what it has; clearable after SIGCONT."""
-    cause = hang_mid_motion(arm, Service.PLANNER, AlarmCode.PLANNER_HUNG)
-    check_no_jump(arm, since=cause)
-    check_back_to_work(arm)
-
-
-def test_command_killed_in_the_middle_of_a_motion(arm: System):
-    """Command SIGKILL: FAULT 0x402; the arm stops smoothly, the servo goes off; restarted, back to work."""
-    cause = kill_mid_motion(arm, Service.COMMAND, AlarmCode.COMMAND_LOST)
-    check_no_jump(arm, since=cause)
-    check_back_to_work(arm)
-
-
-def test_command_hung_by_sigstop(arm: System):
-    """Command SIGSTOP mid-motion: FAULT 0x412 while its token stays; the arm stops; back to work after SIGCONT."""
-    cause = hang_mid_motion(arm, Service.COMMAND, AlarmCode.COMMAND_HUNG)
-    check_no_jump(arm, since=cause)
+@pytest.mark.parametrize("service, how, code", FAULTS)
+def test_a_service_killed_or_hung_mid_motion_is_a_fault(arm: System, service: Service, how: str,
+                                                        code: AlarmCode):
+    """SIGKILL: the FAULT names the lost service and the launcher restarts it; SIGSTOP (token up, heartbeat
+    silent): the FAULT says it hangs and stays while it does. Either way the arm stops smoothly (except a
+    killed servo's), the queue is discarded, and the arm is back to work once the alarm is cleared."""
+    cause = (kill_mid_motion if how == "kill" else hang_mid_motion)(arm, service, code)
+    if not (service is Service.SERVO and how == "kill"):
+        check_no_jump(arm, since=cause)
     check_back_to_work(arm)
 
 
