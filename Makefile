@@ -16,7 +16,9 @@ PYTEST_ARGS ?=
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet --config-settings editable_mode=strict -e '.[test]'
+	# setuptools' notice that a strict editable install keeps build/__editable__* is silenced: that is the point of it.
+	PYTHONWARNINGS=ignore::Warning:setuptools.command.editable_wheel \
+		$(BIN)/python -m pip install --quiet --config-settings editable_mode=strict -e '.[test]'
 	rm -f $(VENV)/.installed-*
 	touch $@
 
