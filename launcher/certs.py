@@ -24,6 +24,7 @@ import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TextIO
 
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
@@ -355,3 +356,54 @@ def table(identities: Sequence[Identity], now: dt.datetime | None = None) -> lis
         for i in identities]
     widths = [max(len(row[c]) for row in rows) for c in range(3)]
     return [f"{r[0]:<{widths[0]}}  {r[1]:<{widths[1]}}  {r[2]:<{widths[2]}}  {r[3]}" for r in rows]
+
+
+# -- what ``jara-arm certs`` prints ----------------------------------------------------------------------
+
+
+def report_init(root: Path, out: TextIO, *, days: int = CA_DAYS, hosts: Sequence[str] = DEFAULT_HOSTS) -> Cell:
+    """``certs init``: :func:`init_cell`, then what was made and what to do next, on ``out``."""
+    cell = init_cell(root, days=days, hosts=hosts)
+    ca_cert, _ = load_ca(cell)
+    print(f"made the cell {cell.root.resolve()}:", file=out)
+    print(f"  {cell.ca_certificate.resolve()}  the CA's certificate, expires "
+          f"{ca_cert.not_valid_after_utc:%Y-%m-%dT%H:%M:%SZ}: every host of the cell needs it", file=out)
+    print(f"  {cell.ca_key.resolve()}  the CA's private key: issue certificates here, copy it nowhere", file=out)
+    print(f"  {cell.registry_file.resolve()}  the registry (name -> role): every router of the cell needs it",
+          file=out)
+    print("identities:", file=out)
+    for line in table(list_identities(cell)):
+        print(f"  {line}", file=out)
+    print("  with, for each NAME: NAME.pem (certificate), NAME.key (private key, mode 0600), NAME.json5 "
+          "(Zenoh configuration)", file=out)
+    print(f"next: `jara-arm certs issue {root} NAME --role operator` for each person or program, "
+          f"then `jara-arm up --secure {root}`", file=out)
+    return cell
+
+
+def report_issue(root: Path, name: str, role: Role, out: TextIO, *, hosts: Sequence[str] = DEFAULT_HOSTS,
+                 days: int = ISSUE_DAYS, force: bool = False) -> Identity:
+    """``certs issue``: :func:`issue` in the cell at ``root``, then its three files and what each is for."""
+    cell = Cell(root)
+    identity = issue(cell, name, role, hosts=hosts, days=days, force=force)
+    cert, key, conf = (f.resolve() for f in files_of(cell, identity.name))
+    print(f"issued {identity.name!r}, role {identity.role.value}, serial {identity.serial}, expires "
+          f"{identity.not_after}, hosts {', '.join(identity.hosts) or '-'}:", file=out)
+    print(f"  {cert}  its certificate", file=out)
+    print(f"  {key}  its private key (mode 0600): copy it to {identity.name}'s host only", file=out)
+    what = ("listens on tls/127.0.0.1:" if identity.role is Role.ROUTER
+            else "add a router's endpoint to connect/endpoints, e.g. tls/HOST:")
+    print(f"  {conf}  its Zenoh configuration: {what}{DEFAULT_PORT}", file=out)
+    return identity
+
+
+def report_list(root: Path, out: TextIO) -> None:
+    """``certs list``: the identities of the cell at ``root`` as a table."""
+    cell = Cell(root)
+    identities = list_identities(cell)
+    if not identities:
+        print(f"no identities in {cell.root} (issue one with `jara-arm certs issue {root} NAME --role ROLE`)",
+              file=out)
+    else:
+        print("\n".join(table(identities)), file=out)
+

@@ -51,9 +51,8 @@ from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
 from jara_arm.schema.roles import Role
 from jara_arm.services.runtime.arguments import non_negative_float, positive_float, positive_int
-from jara_arm.services.runtime.cell import ROUTER_IDENTITY, Cell, CellError
+from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
 from jara_arm.services.runtime.timing import add_health_arguments, health_from_args
-from jara_arm.services.runtime.zenoh_args import DEFAULT_PORT as ZENOH_PORT
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
 from . import certs
@@ -401,10 +400,8 @@ def _arm_filter(parser: argparse.ArgumentParser) -> None:
 
 def _client_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """The shared Zenoh options; a client of the launcher's default endpoint unless told otherwise."""
-    add_zenoh_arguments(parser, default_mode="client")
-    for action in parser._actions:
-        if "--connect" in action.option_strings:
-            action.help = f"{action.help} (default: {DEFAULT_LISTEN}, {default_endpoint('secure')} with --secure)"
+    add_zenoh_arguments(parser, default_mode="client",
+                        default_connect=f"{DEFAULT_LISTEN}, {default_endpoint('secure')} with --secure")
 
 
 def _log_level(parser: argparse.ArgumentParser) -> None:
@@ -414,11 +411,7 @@ def _log_level(parser: argparse.ArgumentParser) -> None:
 
 def _router_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """The shared Zenoh options, with the mode fixed to router (so --mode is hidden)."""
-    add_zenoh_arguments(parser, default_mode="router", default_identity=ROUTER_IDENTITY)
-    for action in parser._actions:  # argparse has no public way to drop an option
-        if "--mode" in action.option_strings:
-            action.choices = ["router"]
-            action.help = argparse.SUPPRESS
+    add_zenoh_arguments(parser, default_mode="router", default_identity=ROUTER_IDENTITY, fixed_mode=True)
 
 
 def command_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, list[str]]:
@@ -635,41 +628,12 @@ def _certs(args: argparse.Namespace) -> int:
     """``certs init``, ``issue``, ``list``: what was made or found on stdout; a mistake (exit 2) on stderr."""
     try:
         if args.certs_command == "init":
-            cell = certs.init_cell(args.dir, days=args.days, hosts=args.host or certs.DEFAULT_HOSTS)
-            ca_cert, _ = certs.load_ca(cell)
-            root = cell.root.resolve()
-            print(f"made the cell {root}:")
-            print(f"  {cell.ca_certificate.resolve()}  the CA's certificate, expires "
-                  f"{ca_cert.not_valid_after_utc:%Y-%m-%dT%H:%M:%SZ}: every host of the cell needs it")
-            print(f"  {cell.ca_key.resolve()}  the CA's private key: issue certificates here, copy it nowhere")
-            print(f"  {cell.registry_file.resolve()}  the registry (name -> role): every router of the cell needs it")
-            print("identities:")
-            identities = certs.list_identities(cell)
-            for line in certs.table(identities):
-                print(f"  {line}")
-            print("  with, for each NAME: NAME.pem (certificate), NAME.key (private key, mode 0600), NAME.json5 "
-                  "(Zenoh configuration)")
-            print(f"next: `jara-arm certs issue {args.dir} NAME --role operator` for each person or program, "
-                  f"then `jara-arm up --secure {args.dir}`")
-            return 0
-        cell = Cell(args.dir)
-        if args.certs_command == "issue":
-            identity = certs.issue(cell, args.name, Role(args.role), hosts=args.host or certs.DEFAULT_HOSTS,
-                                   days=args.days, force=args.force)
-            cert, key, conf = (f.resolve() for f in certs.files_of(cell, identity.name))
-            print(f"issued {identity.name!r}, role {identity.role.value}, serial {identity.serial}, expires "
-                  f"{identity.not_after}, hosts {', '.join(identity.hosts) or '-'}:")
-            print(f"  {cert}  its certificate")
-            print(f"  {key}  its private key (mode 0600): copy it to {identity.name}'s host only")
-            what = ("listens on tls/127.0.0.1:" if identity.role is Role.ROUTER
-                    else "add a router's endpoint to connect/endpoints, e.g. tls/HOST:")
-            print(f"  {conf}  its Zenoh configuration: {what}{ZENOH_PORT}")
-            return 0
-        identities = certs.list_identities(cell)
-        if not identities:
-            print(f"no identities in {cell.root} (issue one with `jara-arm certs issue {args.dir} NAME --role ROLE`)")
+            certs.report_init(args.dir, sys.stdout, days=args.days, hosts=args.host or certs.DEFAULT_HOSTS)
+        elif args.certs_command == "issue":
+            certs.report_issue(args.dir, args.name, Role(args.role), sys.stdout,
+                               hosts=args.host or certs.DEFAULT_HOSTS, days=args.days, force=args.force)
         else:
-            print("\n".join(certs.table(identities)))
+            certs.report_list(args.dir, sys.stdout)
         return 0
     except (certs.CertsError, CellError) as exc:
         print(f"jara-arm certs: {exc}", file=sys.stderr)

@@ -33,14 +33,18 @@ def default_endpoint(secure: str | None) -> str:
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str = "peer",
-                        default_identity: str | None = None) -> None:
+                        default_identity: str | None = None, fixed_mode: bool = False,
+                        default_connect: str | None = None) -> None:
+    """The shared Zenoh options. ``fixed_mode``: ``--mode`` accepts ``default_mode`` only and is left out of
+    the help (a router); ``default_connect``: what the help says is connected to without ``--connect``."""
     g = parser.add_argument_group("zenoh")
-    g.add_argument("--mode", choices=MODES, default=default_mode,
-                   help=f"Zenoh session mode (default: {default_mode})")
+    g.add_argument("--mode", choices=[default_mode] if fixed_mode else MODES, default=default_mode,
+                   help=argparse.SUPPRESS if fixed_mode else f"Zenoh session mode (default: {default_mode})")
     g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable)")
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)"
+                   + (f" (default: {default_connect})" if default_connect else ""))
     g.add_argument("--config", metavar="ZENOH_CONFIG_FILE",
                    help="Zenoh configuration file (JSON5); the options above override it")
     g.add_argument("--multicast", action="store_true",
