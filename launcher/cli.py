@@ -499,29 +499,23 @@ def _tool(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         return USAGE_ERROR
     began = time.monotonic()
     session = _open(args, parser, join_within=args.timeout if name in ("call", "echo", "wait") else None)
-    joining = time.monotonic() - began  # [s] of the command's timeout spent joining
-
-    def left(timeout: float) -> float:
-        return max(0.1, timeout - joining)
-
     signals = StopSignals()
     with session:
-        timeout = left(args.timeout) if name == "call" else 2.0  # [s] per query
+        # [s] per query: a call's reply within what joining left of its timeout
+        timeout = max(0.1, args.timeout - (time.monotonic() - began)) if name == "call" else 2.0
         client = ArmClient(session, args.arm, timeout=timeout)
         try:
             if call is not None:
                 return run_call(client, call, sys.stdout, sys.stderr)
             if key is not None:
                 count = 1 if args.once else args.count
-                return run_echo(session, EchoSettings(key, args.rate, count,
-                                                      None if args.timeout is None else left(args.timeout),
-                                                      args.show_key),
+                return run_echo(session, EchoSettings(key, args.rate, count, args.timeout, args.show_key, began),
                                 signals.stop, sys.stdout, sys.stderr)
             if name == "state":
                 return run_state(client, signals.stop, sys.stdout, once=args.once, period=args.period,
                                  tty=sys.stdout.isatty())
-            return run_wait(client, Condition(args.condition), left(args.timeout), args.poll, signals.stop,
-                            sys.stderr)
+            return run_wait(client, Condition(args.condition), args.timeout, args.poll, signals.stop, sys.stderr,
+                            began)
         except ClientError as exc:
             # A router drops what a role may not do without a word to the client: silence.
             hint = (f" (in a secure cell this is also what identity {args.identity!r} gets for what its role "

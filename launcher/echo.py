@@ -113,6 +113,7 @@ class EchoSettings:
     count: int | None = None  # samples to print before exiting, None for no end
     timeout: float | None = None  # [s] to wait for them, None for no end
     show_key: bool = False
+    began: float | None = None  # [s, monotonic] where the timeout counts from (default: the echo's start)
 
 
 def run_echo(session: zenoh.Session, settings: EchoSettings, stop: threading.Event, out: TextIO,
@@ -121,7 +122,8 @@ def run_echo(session: zenoh.Session, settings: EchoSettings, stop: threading.Eve
     sub = session.declare_subscriber(settings.key, zenoh.handlers.RingChannel(_RING))
     thinner = Thinner(settings.rate)
     printed = 0
-    deadline = time.monotonic() + settings.timeout if settings.timeout is not None else None
+    began = time.monotonic() if settings.began is None else settings.began
+    deadline = began + settings.timeout if settings.timeout is not None else None
     try:
         while not stop.is_set():
             sample = sub.try_recv()

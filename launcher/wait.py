@@ -89,9 +89,10 @@ def check(client: ArmClient, condition: Condition) -> Check:
 
 
 def run_wait(client: ArmClient, condition: Condition, timeout: float, poll: float, stop: threading.Event,
-             err: TextIO) -> int:
-    """Until ``condition`` holds (0), ``timeout`` [s] passes (TIMED_OUT) or ``stop`` (INTERRUPTED)."""
-    deadline = time.monotonic() + timeout
+             err: TextIO, began: float | None = None) -> int:
+    """Until ``condition`` holds (0), ``timeout`` [s] passes (TIMED_OUT) or ``stop`` (INTERRUPTED); the timeout
+    counts from ``began`` [s, monotonic] if given (the command's start: joining the network included)."""
+    deadline = (time.monotonic() if began is None else began) + timeout
     while True:
         seen = check(client, condition)
         if seen.met:

@@ -324,6 +324,27 @@ STREAM_PRIORITY = 30
 
 
 @contextlib.contextmanager
+def realtime_process_section(priority: int) -> Iterator[None]:
+    """Every thread of this process under the normal scheduler at SCHED_FIFO ``priority`` meanwhile, where
+    permitted; Zenoh's own threads included, which carry a stream out (a low-level client's stack must be
+    real-time as a whole: its Python thread alone is not enough)."""
+    raised = []
+    for tid in (int(t) for t in os.listdir("/proc/self/task")):
+        try:
+            if os.sched_getscheduler(tid) == os.SCHED_OTHER:
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+                raised.append(tid)
+        except OSError:  # no permission, or the thread ended meanwhile
+            continue
+    try:
+        yield
+    finally:
+        for tid in raised:
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+
+
+@contextlib.contextmanager
 def realtime_section(priority: int) -> Iterator[None]:
     """The calling thread at SCHED_FIFO ``priority`` meanwhile, where permitted (as it was, otherwise)."""
     raised = realtime_thread(priority, "a test's timed section")

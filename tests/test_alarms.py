@@ -46,8 +46,8 @@ from jara_arm.services.runtime.timing import SAME_HOST
 from jara_arm.services.runtime.wire import Publication, decode_sample
 from jara_arm.services.servo.control import LIMIT_STOP_ACCEL, OVERSPEED_MARGIN
 
-from .support import (STREAM_PRIORITY, Client, Proc, client_session, endpoint, free_port, realtime_section, wait_alive,
-                      wait_until)
+from .support import (STREAM_PRIORITY, Client, Proc, client_session, endpoint, free_port, realtime_process_section,
+                      wait_alive, wait_until)
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -239,10 +239,12 @@ class System:
         400 ms ahead: this process, at normal priority beside a busy loop per core, was held up for
         300 ms and the servo rightly ran dry before the stream reached what the test checks."""
         sent = []
-        # A low-level client keeps a 1 kHz stream fed from a real-time thread, as a real one must: at
+        # A low-level client keeps a 1 kHz stream fed from real-time threads, as a real one must: at
         # normal priority beside a busy loop per core this one ran dry mid-motion, and the servo then
-        # rightly refused the rest of it (a stream that goes on mid-motion is not taken up again).
-        with realtime_section(STREAM_PRIORITY):
+        # rightly refused the rest of it (a stream that goes on mid-motion is not taken up again). The
+        # sending thread alone at real-time priority was not enough: a stream sent whole at once ran dry
+        # 0.2 s in, its samples waiting in the session's transmission thread (1 fresh-clone CI run of 5).
+        with realtime_process_section(STREAM_PRIORITY):
             t0 = time.monotonic()
             for k, q in enumerate(points):
                 sent.append(self.send(q))
