@@ -877,11 +877,13 @@ def test_planner_gone_discards_the_queue(fake):
 
 
 def slow_motions(real: Rig, count: int) -> list[Reply]:
-    """``count`` joint moves of J1 back and forth at 1 % speed: seconds each, so they pile up."""
+    """``count`` joint moves of J1 back and forth at 1 % speed, about 12 s each, so they pile up. (0.05 rad,
+    3.6 s each, was not enough beside a busy loop per core: 33 requests planned at up to 105 ms each took
+    longer than the first motion, which ended before the 33rd came and left it room.)"""
     real.ok(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 1})
     out = []
     for k in range(count):
-        step = 0.05 if k % 2 == 0 else -0.05
+        step = 0.2 if k % 2 == 0 else -0.2
         out.append(real.client.middle(OP.movePTPJointRel, {"jointPoints": (step,) + (0.0,) * (N - 1)}))
     return out
 
