@@ -53,6 +53,12 @@ class CommandCommon:
             return reply
 
     def getActiveAlarm(self) -> Reply:
+        """The monitor's numbered list, adopted before it is answered: a ``getState`` after this reply has
+        bit 0x04 for what it lists (and no servo-on bit for a FAULT), whatever the publications' delay."""
+        alarms = self.core.monitor.alarm_list()
+        if alarms is not None:
+            self.core.state.on_alarms(alarms)
+            return ok(alarms=alarms.alarms)
         reply = self.core.monitor.call(OP.getActiveAlarm)
         return reply if reply is not None else self.core.servo.call(OP.getActiveAlarm)
 

@@ -32,7 +32,7 @@ from collections.abc import Callable
 from jara_arm.schema import alarms as alarm_lists
 from jara_arm.schema import planner as planner_progress
 from jara_arm.schema.alarms import AlarmList
-from jara_arm.schema.codes import StateBit
+from jara_arm.schema.codes import AlarmType, StateBit
 from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.planner import PlannerProgress
 from jara_arm.schema.types import LimitValue
@@ -117,9 +117,12 @@ class StateTracker:
         st = self._status if heard else None
         progress = self._progress
         queued = len(progress.queued) if progress is not None else 0
+        # A FAULT switches the servo off (SPEC.md §4): with one listed, no servo-on bit, even before the
+        # servo's own status says so (what getActiveAlarm answered and getState must agree).
+        fault = bool(self._alarms and any(a.type is AlarmType.FAULT for a in self._alarms.alarms))
         return StateView(
             servo_heard=heard,
-            servo_on=bool(st and st.servoOn),
+            servo_on=bool(st and st.servoOn) and not fault,
             moving=bool(st and st.moving) or queued > 0,
             alarm=bool(st and st.alarm) or bool(self._alarms and self._alarms.alarms),
             full=queued >= self.capacity,
