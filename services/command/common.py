@@ -19,10 +19,11 @@ import logging
 
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.errors import Refusal
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import ControlAction
 from jara_arm.schema.types import LimitValue
-from jara_arm.services.runtime.rpc import ok, refuse
+from jara_arm.services.runtime.rpc import ok
 
 from .core import Core, with_note
 from .feedback import JointFeedback
@@ -107,8 +108,8 @@ class CommandCommon:
             if view.moving:
                 why = (f"{view.queue_length} motion(s) queued" if view.queue_length
                        else "the arm is moving")
-                return refuse(ReturnCode.STATUS_ERR, f"{OP.setSoftLimitJoint} refused while moving: {why}")
+                raise Refusal(ReturnCode.STATUS_ERR, f"{OP.setSoftLimitJoint} refused while moving: {why}")
             if view.alarm:
-                return refuse(ReturnCode.STATUS_ERR, f"{OP.setSoftLimitJoint} refused: an alarm is active "
+                raise Refusal(ReturnCode.STATUS_ERR, f"{OP.setSoftLimitJoint} refused: an alarm is active "
                               f"({OP.getActiveAlarm}, {OP.clearAlarms})")
             return core.servo.call(OP.setSoftLimitJoint, {"softLimit": softLimit})

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.errors import WireError
+from jara_arm.schema.errors import Refusal, WireError
 from jara_arm.schema.operations import MAX_SPEED_OVERRIDE, OP
 from jara_arm.schema.planner import ControlAction
-from jara_arm.services.runtime.rpc import ok, refuse
+from jara_arm.services.runtime.rpc import ok
 
 from .middle import CommandMiddle
 
@@ -57,6 +57,6 @@ class CommandExt:
         if progress is None:
             # The servo's word comes only through the planner: without it there is nothing to say (NG, as
             # every planner call without a planner, naming the missing service).
-            return refuse(ReturnCode.NG, f"{OP.getSpeedOverride}: no Planner/progress from the "
+            raise Refusal(ReturnCode.NG, f"{OP.getSpeedOverride}: no Planner/progress from the "
                           "planner service: is it running?")
         return ok(ratio=progress.override)

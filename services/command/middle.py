@@ -15,10 +15,11 @@ from typing import Any
 
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.errors import Refusal
 from jara_arm.schema.operations import MIDDLE, OP
 from jara_arm.schema.planner import ControlAction, MotionRequest
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, HgMatrix, JointPos, LimitValue
-from jara_arm.services.runtime.rpc import ok, refuse
+from jara_arm.services.runtime.rpc import ok
 from jara_arm.services.runtime.timing import STATUS_LISTEN
 
 from .cartesian import CartesianFeedback
@@ -117,9 +118,9 @@ class CommandMiddle:
             if not view.servo_on:
                 why = ("the servo is off: call servoON first" if view.servo_heard else
                        "no Servo/status from the servo service: is it running?")
-                return refuse(ReturnCode.NOT_SV_ON_ERR, f"{name} refused: {why}")
+                raise Refusal(ReturnCode.NOT_SV_ON_ERR, f"{name} refused: {why}")
             if view.alarm:
-                return refuse(ReturnCode.STATUS_ERR, f"{name} refused: an alarm is active "
+                raise Refusal(ReturnCode.STATUS_ERR, f"{name} refused: an alarm is active "
                               f"({OP.getActiveAlarm}, then {OP.clearAlarms} and {OP.servoON})")
             # The speed ratio starts at 0 % (specification): until it is set, nothing may move.
             if name in CARTESIAN_RATIO_OPS:
@@ -127,19 +128,19 @@ class CommandMiddle:
             else:
                 ratio, setter = self.settings.spd_ratio_joint, OP.setSpeedJoint
             if ratio == 0:
-                return refuse(ReturnCode.STATUS_ERR, f"{name} refused: the speed ratio is 0 %; "
+                raise Refusal(ReturnCode.STATUS_ERR, f"{name} refused: the speed ratio is 0 %; "
                               f"set it with {setter}")
             if view.full:
-                return refuse(ReturnCode.FULL_MOTION_QUEUE_ERR, f"{name} refused: the motion queue "
+                raise Refusal(ReturnCode.FULL_MOTION_QUEUE_ERR, f"{name} refused: the motion queue "
                               f"holds {view.queue_length} of {view.capacity} motions")
             if "jointPoints" in args:
                 self.settings.check_joint_points("jointPoints", args["jointPoints"])
             if "angleRatio" in args and args["angleRatio"] > MAX_GRIPPER_RATIO:
-                return refuse(ReturnCode.VALUE_ERR, f"angleRatio: {args['angleRatio']} % is above "
+                raise Refusal(ReturnCode.VALUE_ERR, f"angleRatio: {args['angleRatio']} % is above "
                               f"{MAX_GRIPPER_RATIO} %")
             limits = core.servo.call(OP.getSoftLimitJoint)  # the servo's, as they are now
             if not limits.ok:
-                return refuse(ReturnCode.NG, f"{name} refused: joint soft limits unavailable: "
+                raise Refusal(ReturnCode.NG, f"{name} refused: joint soft limits unavailable: "
                               f"{limits.comment}")
             wire_args = {p.name: p.type.encode(args[p.name]) for p in op.inputs}
             request = MotionRequest(name, wire_args, self.settings.snapshot(limits["softLimit"]))
@@ -272,7 +273,7 @@ class CommandMiddle:
         with core.serial:  # no setSoftLimitJoint in between the check and the change
             limits = core.servo.call(OP.getSoftLimitJoint)
             if not limits.ok:
-                return refuse(ReturnCode.NG, f"{OP.setHome} refused: joint soft limits unavailable: "
+                raise Refusal(ReturnCode.NG, f"{OP.setHome} refused: joint soft limits unavailable: "
                               f"{limits.comment}")
             self.change_settings(lambda s: s.with_home(jointPoint, limits["softLimit"]))
             return ok()

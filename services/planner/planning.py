@@ -63,7 +63,7 @@ from jara_arm.kinematics.posture import BITS, POSTURE_SET, Postures, describe
 from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.errors import JaraArmError, WireError
+from jara_arm.schema.errors import JaraArmError, Refusal, WireError
 from jara_arm.schema.operations import MIDDLE
 from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, JointPos
@@ -138,13 +138,8 @@ class _HeadDone(Exception):
     """Ends :meth:`MotionPlanner.plan` within :meth:`MotionPlanner.head` once the head is checked."""
 
 
-class PlanRefused(JaraArmError):
+class PlanRefused(Refusal):
     """A motion that is not queued: ``code`` and ``comment`` go back to the client."""
-
-    def __init__(self, code: ReturnCode, comment: str) -> None:
-        super().__init__(comment)
-        self.code = code
-        self.comment = comment
 
 
 @dataclasses.dataclass(frozen=True)

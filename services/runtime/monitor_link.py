@@ -24,13 +24,13 @@ from jara_arm.schema import codec
 from jara_arm.schema.alarms import ALARM_LIST, MONITOR_OPERATIONS, AlarmList, format_code
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.errors import WireError
+from jara_arm.schema.errors import Refusal, WireError
 from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.types import Alarm
 
 from .ask import Answer, Asker, Silence
 from .entities import Entities
-from .rpc import ok, refuse
+from .rpc import ok
 from .timing import MONITOR_TIMEOUT
 from .wire import reply_message
 
@@ -38,13 +38,15 @@ log = logging.getLogger(__name__)
 
 
 
-def clear_reply(cleared: list[Alarm], kept: list[Alarm]) -> Reply:
-    """The ``clearAlarms`` reply: OK if nothing stayed, else STATUS_ERR naming what stayed and why."""
+def clear_reply(cleared: list[Alarm], kept: list[Alarm], note: str = "") -> Reply:
+    """The ``clearAlarms`` reply: OK if nothing stayed, else a STATUS_ERR :class:`Refusal` naming what stayed
+    and why; ``note`` in brackets after either comment."""
+    after = f" ({note})" if note else ""
     if kept:
-        return refuse(ReturnCode.STATUS_ERR, "cause still present, not cleared: " + "; ".join(
+        raise Refusal(ReturnCode.STATUS_ERR, "cause still present, not cleared: " + "; ".join(
             f"{format_code(a.code)} {a.description}" for a in kept)
-            + (f" (cleared: {', '.join(format_code(a.code) for a in cleared)})" if cleared else ""))
-    return ok("OK" if cleared else "OK: no active alarm")
+            + (f" (cleared: {', '.join(format_code(a.code) for a in cleared)})" if cleared else "") + after)
+    return ok(("OK" if cleared else "OK: no active alarm") + after)
 
 
 class MonitorLink:

@@ -20,7 +20,7 @@ import zenoh
 from jara_arm.schema import codec
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.errors import WireError
+from jara_arm.schema.errors import Refusal
 from jara_arm.schema.keys import op_of
 from jara_arm.schema.operations import Operation
 
@@ -53,26 +53,20 @@ def ok(comment: str = "OK", **outs: Any) -> Reply:
     return Reply(ReturnCode.OK, comment, outs)
 
 
-def refuse(code: ReturnCode, comment: str) -> Reply:
-    return Reply(code, comment)
-
-
 def answer(op: Operation | None, payload: bytes, encoding: Encoding, handler: object,
            name: str) -> Reply:
-    """The reply to one query: decode strictly, call the handler, never raise."""
+    """The reply to one query: decode strictly, call the handler, never raise. A handler returns its
+    reply, or raises :class:`Refusal` (a :class:`WireError` for a bad value): its code and comment."""
     if op is None:
-        return refuse(ReturnCode.NOT_IMPLEMENTED, f"no operation {name!r} in this interface")
+        return Reply(ReturnCode.NOT_IMPLEMENTED, f"no operation {name!r} in this interface")
     try:
         args = codec.decode_request(op, payload, encoding)
-    except WireError as exc:
-        return refuse(ReturnCode.VALUE_ERR, str(exc))
-    try:
         reply: Reply = getattr(handler, op.name)(**args)
-    except WireError as exc:  # a handler's own check of a value, field named
-        return refuse(ReturnCode.VALUE_ERR, str(exc))
+    except Refusal as exc:
+        return Reply(exc.code, exc.comment)
     except Exception as exc:  # a bug of ours must not kill the service or leave a query unanswered
         log.exception("%s failed", op.name)
-        return refuse(ReturnCode.NG, f"internal error in {op.name}: {exc}")
+        return Reply(ReturnCode.NG, f"internal error in {op.name}: {exc}")
     return reply
 
 

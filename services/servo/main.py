@@ -15,14 +15,14 @@ from jara_arm.schema.alarms import format_code
 from jara_arm.schema import codec
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.errors import JaraArmError, WireError
+from jara_arm.schema.errors import JaraArmError, Refusal, WireError
 from jara_arm.schema.keys import ArmKeys, Service, check_arm
 from jara_arm.schema.motion import MOTION_CONTROL, MOTION_REPLY, TRAJECTORY, MotionAction, MotionReply
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.arguments import obstacle_argument
 from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
-from jara_arm.services.runtime.rpc import ok, refuse
+from jara_arm.services.runtime.rpc import ok
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 
 from .clock import DEFAULT_RT_PRIORITY, ServoClock
@@ -52,8 +52,7 @@ class ServoCommon:
         reply = self.monitor.call(OP.clearAlarms)
         if reply is None:
             cleared, kept = self.loop.call(self.loop.clear_alarms_now)
-            fallback = clear_reply(cleared, kept)
-            return Reply(fallback.id, f"{fallback.comment} ({NO_MONITOR})")
+            return clear_reply(cleared, kept, NO_MONITOR)
         self.refresh()  # the latches the monitor cleared are released before the reply
         return reply
 
@@ -91,12 +90,16 @@ class ServoCommon:
         why = self.loop.call(self.loop.servo_on_now)
         if why and self.loop.monitor_alarms and self.refresh():
             why = self.loop.call(self.loop.servo_on_now)  # alarms just cleared through another interface
-        return refuse(ReturnCode.STATUS_ERR, f"servoON refused: {why}") if why else ok()
+        if why:
+            raise Refusal(ReturnCode.STATUS_ERR, f"servoON refused: {why}")
+        return ok()
 
     def setSoftLimitJoint(self, softLimit: tuple[LimitValue, ...]) -> Reply:
         check_soft_limits(softLimit, self.model)
         why = self.loop.call(lambda: self.loop.set_soft_limits_now(softLimit))
-        return refuse(ReturnCode.STATUS_ERR, f"setSoftLimitJoint refused: {why}") if why else ok()
+        if why:
+            raise Refusal(ReturnCode.STATUS_ERR, f"setSoftLimitJoint refused: {why}")
+        return ok()
 
 
 class ServoMotion:
