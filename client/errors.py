@@ -17,6 +17,8 @@ class ArmError(JaraArmError, RuntimeError):
 class Refused(ArmError):
     """The service answered with a RETURN_ID other than OK: ``code`` and its ``comment`` say why."""
 
+    code: ReturnCode
+
     def __init__(self, op: str, code: ReturnCode, comment: str) -> None:
         super().__init__(f"{op}: {code.name} ({int(code)}): {comment}", code)
         self.op = op

@@ -103,7 +103,7 @@ def _method(op: Operation) -> str:
         outs = [_py(m, True) for m in op.outputs]
         returns = "None" if not outs else outs[0] if len(outs) == 1 else f"tuple[{', '.join(outs)}]"
         call = f"self._call({where}, args)"
-        body = ([call] if not outs else [f"return {call}[0]"] if len(outs) == 1
+        body = ([call] if not outs else [f"result: {outs[0]} = {call}[0]", "return result"] if len(outs) == 1
                 else [f"out = {call}", f"return ({', '.join(f'out[{i}]' for i in range(len(outs)))})"])
     signature = f"    def {op.name}({', '.join(params)}) -> {returns}:"
     if len(signature) > 116:

@@ -41,27 +41,32 @@ class Operations(abc.ABC):
     def getActiveAlarm(self) -> tuple[Alarm, ...]:
         """The active alarms; an empty sequence when none."""
         args: dict[str, Any] = {}
-        return self._call(Interface.COMMON, OP.getActiveAlarm, args)[0]
+        result: tuple[Alarm, ...] = self._call(Interface.COMMON, OP.getActiveAlarm, args)[0]
+        return result
 
     def getFeedbackPosJoint(self) -> tuple[float, ...]:
         """Joint position feedback, J1..Jn then the gripper."""
         args: dict[str, Any] = {}
-        return self._call(Interface.COMMON, OP.getFeedbackPosJoint, args)[0]
+        result: tuple[float, ...] = self._call(Interface.COMMON, OP.getFeedbackPosJoint, args)[0]
+        return result
 
     def getManipInfo(self) -> ManipInfo:
         """Manipulator information."""
         args: dict[str, Any] = {}
-        return self._call(Interface.COMMON, OP.getManipInfo, args)[0]
+        result: ManipInfo = self._call(Interface.COMMON, OP.getManipInfo, args)[0]
+        return result
 
     def getSoftLimitJoint(self) -> tuple[LimitValue, ...]:
         """Joint soft limits, one per axis (gripper excluded)."""
         args: dict[str, Any] = {}
-        return self._call(Interface.COMMON, OP.getSoftLimitJoint, args)[0]
+        result: tuple[LimitValue, ...] = self._call(Interface.COMMON, OP.getSoftLimitJoint, args)[0]
+        return result
 
     def getState(self) -> int:
         """State bits: 0x01 servo on, 0x02 moving, 0x04 alarm, 0x08 buffer full, 0x10 paused."""
         args: dict[str, Any] = {}
-        return self._call(Interface.COMMON, OP.getState, args)[0]
+        result: int = self._call(Interface.COMMON, OP.getState, args)[0]
+        return result
 
     def servoOFF(self) -> None:
         """All axes servo off; brakes hold the joints."""
@@ -87,32 +92,38 @@ class Operations(abc.ABC):
     def getBaseOffset(self) -> NDArray[np.float64]:
         """Base offset: the robot frame seen from the arm frame."""
         args: dict[str, Any] = {}
-        return self._call(Interface.MIDDLE, OP.getBaseOffset, args)[0]
+        result: NDArray[np.float64] = self._call(Interface.MIDDLE, OP.getBaseOffset, args)[0]
+        return result
 
     def getFeedbackPosCartesian(self) -> CarPosWithElbow:
         """Control-point pose in the robot frame."""
         args: dict[str, Any] = {}
-        return self._call(Interface.MIDDLE, OP.getFeedbackPosCartesian, args)[0]
+        result: CarPosWithElbow = self._call(Interface.MIDDLE, OP.getFeedbackPosCartesian, args)[0]
+        return result
 
     def getMaxSpeedCartesian(self) -> CartesianSpeed:
         """Cartesian max translation and rotation speed."""
         args: dict[str, Any] = {}
-        return self._call(Interface.MIDDLE, OP.getMaxSpeedCartesian, args)[0]
+        result: CartesianSpeed = self._call(Interface.MIDDLE, OP.getMaxSpeedCartesian, args)[0]
+        return result
 
     def getMaxSpeedJoint(self) -> tuple[float, ...]:
         """Per-axis max speed."""
         args: dict[str, Any] = {}
-        return self._call(Interface.MIDDLE, OP.getMaxSpeedJoint, args)[0]
+        result: tuple[float, ...] = self._call(Interface.MIDDLE, OP.getMaxSpeedJoint, args)[0]
+        return result
 
     def getMinAccelTimeCartesian(self) -> float:
         """Minimum time to accelerate to max speed (Cartesian)."""
         args: dict[str, Any] = {}
-        return self._call(Interface.MIDDLE, OP.getMinAccelTimeCartesian, args)[0]
+        result: float = self._call(Interface.MIDDLE, OP.getMinAccelTimeCartesian, args)[0]
+        return result
 
     def getMinAccelTimeJoint(self) -> float:
         """Minimum time to accelerate to max speed (joint)."""
         args: dict[str, Any] = {}
-        return self._call(Interface.MIDDLE, OP.getMinAccelTimeJoint, args)[0]
+        result: float = self._call(Interface.MIDDLE, OP.getMinAccelTimeJoint, args)[0]
+        return result
 
     def getSoftLimitCartesian(self) -> tuple[LimitValue, LimitValue, LimitValue]:
         """Cartesian soft limits in the robot frame."""
@@ -301,7 +312,8 @@ class Operations(abc.ABC):
     def getHome(self) -> tuple[float, ...]:
         """The home position."""
         args: dict[str, Any] = {}
-        return self._call(Interface.MIDDLE, OP.getHome, args)[0]
+        result: tuple[float, ...] = self._call(Interface.MIDDLE, OP.getHome, args)[0]
+        return result
 
     def goHome(self, *, wait: bool = True, timeout: float | None = None) -> Motion:
         """PTP to the home position."""
@@ -322,7 +334,8 @@ class Operations(abc.ABC):
         """the blend distance set with setBlendDistance. A model-specific extension (``Ext``), not in the
         IDL."""
         args: dict[str, Any] = {}
-        return self._call(Interface.EXT, OP.getBlendDistance, args)[0]
+        result: float = self._call(Interface.EXT, OP.getBlendDistance, args)[0]
+        return result
 
     def setSpeedOverride(self, ratio: float) -> None:
         """speed override of every motion, the running one included, 0 .. 100 %. The speed starts to change
@@ -339,7 +352,8 @@ class Operations(abc.ABC):
         """the speed override set with setSpeedOverride, as the servo last reported it. A model-specific
         extension (``Ext``), not in the IDL."""
         args: dict[str, Any] = {}
-        return self._call(Interface.EXT, OP.getSpeedOverride, args)[0]
+        result: float = self._call(Interface.EXT, OP.getSpeedOverride, args)[0]
+        return result
 
 
 __all__ = ["Operations"]
