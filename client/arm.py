@@ -29,7 +29,7 @@ from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys
 from jara_arm.schema.operations import Interface, operation
 from jara_arm.schema.planner import accepted_motion
-from jara_arm.schema.types import CarPosWithElbow, TimedJointPos, hg_matrix
+from jara_arm.schema.types import Alarm, CarPosWithElbow, TimedJointPos, hg_matrix
 from jara_arm.schema.wire_types import TIMED_JOINT_POS
 from jara_arm.services.runtime.ask import Asker, Silence
 from jara_arm.services.runtime.wire import decode_sample
@@ -137,6 +137,11 @@ class Arm(Operations):
     def state(self) -> int:
         """``getState``'s bits (``jara_arm.schema.codes.StateBit``)."""
         return self.getState()
+
+    @property
+    def alarms(self) -> tuple[Alarm, ...]:
+        """``getActiveAlarm``: the active alarms, none when the arm is clear."""
+        return self.getActiveAlarm()
 
     @property
     def joints(self) -> tuple[float, ...]:

@@ -93,6 +93,7 @@ def test_live_a_motion_discarded_by_a_stop_fails_its_wait(api: ClientArm, arm: A
     with pytest.raises(MotionFailed) as failed:
         motion.wait(timeout=10)
     assert failed.value.motion == motion.id and motion.fate is Fate.DISCARDED and not motion.done
+    assert api.alarms == ()  # a client's stop is no alarm
 
 
 def test_live_the_feedback_iterates_the_1khz_samples(api: ClientArm) -> None:
