@@ -6,7 +6,7 @@ BIN    := $(VENV)/bin
 # The install is a strict editable one (a tree of links that editors, mypy and pyright
 # follow): it sees edits to existing files at once, and a new module after a re-install,
 # which the stamp triggers, as it hashes the list of package files with pyproject.toml.
-PACKAGES := schema robots services launcher kinematics
+PACKAGES := schema robots services launcher kinematics client
 STAMP  := $(VENV)/.installed-$(shell (cat pyproject.toml; find $(PACKAGES) -type f -not -path '*/__pycache__/*' 2>/dev/null | LC_ALL=C sort) | cksum | cut -d' ' -f1)
 ARGS   ?=
 PYTEST_ARGS ?=

@@ -47,6 +47,7 @@ from pathlib import Path
 
 import zenoh
 
+from jara_arm.client import Arm, ArmError
 from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, check_arm
 from jara_arm.schema.roles import Role
@@ -535,8 +536,9 @@ def _listen(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             return run_logs(session, signals.stop, args.arm, args.service, args.level)
         if args.command == "demo":
             try:
-                return 1 if run_demo(ArmClient(session, args.arm), sys.stdout) else 0
-            except ClientError as exc:
+                with Arm(session, args.arm) as arm:
+                    return 1 if run_demo(arm, sys.stdout) else 0
+            except (ClientError, ArmError) as exc:
                 print(f"jara-arm demo: {exc}", file=sys.stderr)
                 return 1
         return run_alarms(session, signals.stop, args.arm)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import re
 from typing import Any
 
 from . import wire_types as w
@@ -112,6 +113,21 @@ class PlannerProgress:
 
 
 PLANNER_PROGRESS = struct(PlannerProgress, strict=False, doc="Internal: planner -> everyone, Planner/progress.")
+
+
+def accepted_comment(motion: int) -> str:
+    """The comment of a motion operation's OK reply: it names the id under which ``Planner/progress``
+    reports the motion (``queued``, ``running``, ``lastDone``, ``lastDiscarded``)."""
+    return f"OK: motion {motion} queued"
+
+
+_ACCEPTED = re.compile(r"\bmotion (\d+) queued\b")
+
+
+def accepted_motion(comment: str) -> int | None:
+    """The motion id an OK reply's comment names (:func:`accepted_comment`); None if it names none."""
+    found = _ACCEPTED.search(comment)
+    return int(found.group(1)) if found else None
 
 
 def is_newer(candidate: PlannerProgress, current: PlannerProgress | None) -> bool:

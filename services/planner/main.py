@@ -59,6 +59,7 @@ from jara_arm.schema.planner import (
     PlannedPath,
     PlannerProgress,
     PlanReply,
+    accepted_comment,
 )
 from jara_arm.services.runtime.arguments import non_negative_float, obstacle_argument
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
@@ -201,8 +202,8 @@ class PlannerService:
                 # The preview arrives from the planning process after the motion: read it once queued.
                 self._path_pub.put_message(PLANNED_PATH, PlannedPath(
                     motion_id, req.op, tuple(tuple(p) for p in self.planner.preview().tolist())))
-                return PlanReply(int(ReturnCode.OK), "OK", motion_id, tuple(motion.end.tolist()),
-                                 motion.duration, progress)
+                return PlanReply(int(ReturnCode.OK), accepted_comment(motion_id), motion_id,
+                                 tuple(motion.end.tolist()), motion.duration, progress)
             log.info("%s: the queue was stopped while planning; planning again", req.op)
         return self._refused(ReturnCode.STATUS_ERR, "the queue kept being stopped while planning")
 

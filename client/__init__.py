@@ -1,0 +1,15 @@
+"""``jara_arm.client``: a Python API of one arm over Zenoh (clients in other languages need none of it).
+
+=============  ====================================================================================
+``arm``        :class:`Arm`: every operation by its IDL name, typed; :func:`rel` for relative targets
+``motion``     :class:`Motion`, what a move returns: ``wait()``, ``fate``, ``done``
+``errors``     :class:`ArmError`, the package's one error root: ``Refused``, ``NoAnswer``, ``MotionFailed``
+``operations`` the typed methods, generated from ``jara_arm.schema`` (``python -m jara_arm.client.generate``)
+=============  ====================================================================================
+"""
+
+from .arm import Arm, rel
+from .errors import ArmError, MotionFailed, NoAnswer, Refused
+from .motion import Fate, Motion
+
+__all__ = ["Arm", "ArmError", "Fate", "Motion", "MotionFailed", "NoAnswer", "Refused", "rel"]

@@ -1,0 +1,152 @@
+"""Following accepted motions on ``Planner/progress``: :class:`Motion`, the handle a move returns.
+
+Motions complete strictly in the order they were accepted, and a discard (``stop``, an alarm, a lost
+service) takes the running motion and every one queued behind it. So the fate of a motion is told by
+the first progress report without it: discarded if that report's ``lastDiscarded`` reached it, done if
+its ``lastDone`` did. A restarted planner (a newer ``started``) lost its queue: every motion still
+followed was discarded.
+"""
+
+from __future__ import annotations
+
+import enum
+import threading
+import time
+from collections.abc import Callable
+
+import zenoh
+
+from jara_arm.schema.keys import ArmKeys
+from jara_arm.schema.planner import PLANNER_PROGRESS, PlannerProgress, is_newer
+from jara_arm.services.runtime.wire import decode_sample
+
+from .errors import MotionFailed, NoAnswer
+
+#: Reports kept while nobody reads them: the planner publishes on every change and every 0.1 s.
+_FIFO = 4096
+
+
+class Fate(enum.Enum):
+    """Where a motion is: ``waiting`` (accepted, no report names it yet), ``queued``, ``running``, and at
+    its end ``done`` or ``discarded``."""
+
+    WAITING = "waiting"
+    QUEUED = "queued"
+    RUNNING = "running"
+    DONE = "done"
+    DISCARDED = "discarded"
+
+    @property
+    def ended(self) -> bool:
+        return self in (Fate.DONE, Fate.DISCARDED)
+
+
+class Tracker:
+    """The arm's ``Planner/progress``, read on demand (no thread of its own); the fates of the motions
+    handed out as :class:`Motion`. Thread-safe."""
+
+    def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
+        self._sub = session.declare_subscriber(keys.planner_progress, zenoh.handlers.FifoChannel(_FIFO))
+        self._lock = threading.Lock()
+        self._last: PlannerProgress | None = None
+        self._fates: dict[int, Fate] = {}
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+    def follow(self, motion: int) -> None:
+        with self._lock:
+            self._fates.setdefault(motion, Fate.WAITING)
+
+    def fate(self, motion: int) -> Fate:
+        """Where ``motion`` is now, from every report received so far."""
+        with self._lock:
+            self._drain()
+            return self._fates[motion]
+
+    def newest(self) -> PlannerProgress | None:
+        with self._lock:
+            self._drain()
+            return self._last
+
+    def _drain(self) -> None:
+        while (sample := self._sub.try_recv()) is not None:
+            try:
+                report = decode_sample(PLANNER_PROGRESS, sample)
+            except Exception:  # a malformed report says nothing about our motions
+                continue
+            if is_newer(report, self._last):
+                self._take(report)
+
+    def _take(self, new: PlannerProgress) -> None:
+        old, self._last = self._last, new
+        restarted = old is not None and new.started != old.started
+        seen = max((new.running, new.lastDone, new.lastDiscarded, *new.queued), default=0)
+        for motion, fate in self._fates.items():
+            if fate.ended:
+                continue
+            if restarted and fate is not Fate.WAITING:
+                self._fates[motion] = Fate.DISCARDED
+            elif new.running == motion:
+                self._fates[motion] = Fate.RUNNING
+            elif motion in new.queued:
+                self._fates[motion] = Fate.QUEUED
+            elif motion > seen:
+                continue  # accepted, not reported yet
+            elif new.lastDiscarded >= motion and (old is None or old.lastDiscarded < motion):
+                self._fates[motion] = Fate.DISCARDED
+            elif new.lastDone >= motion:
+                self._fates[motion] = Fate.DONE
+            else:
+                self._fates[motion] = Fate.DISCARDED
+
+    def wait(self, motion: int, timeout: float | None) -> Fate:
+        """Until ``motion`` has ended or ``timeout`` [s] (None: no end) passed; its fate then."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            fate = self.fate(motion)
+            if fate.ended:
+                return fate
+            if deadline is not None and time.monotonic() >= deadline:
+                return fate
+            time.sleep(0.005)  # the reports come in a channel: a short poll, no callback work
+
+
+class Motion:
+    """An accepted motion: :meth:`wait` for its end, :attr:`fate` and :attr:`done` meanwhile."""
+
+    def __init__(self, tracker: Tracker, motion: int, op: str, explain: Callable[[], tuple[str, ...]]) -> None:
+        """``explain``: the arm's active alarms as text, asked when the motion turns out discarded."""
+        self.id = motion
+        self.op = op
+        self._tracker = tracker
+        self._explain = explain
+        tracker.follow(motion)
+
+    @property
+    def fate(self) -> Fate:
+        return self._tracker.fate(self.id)
+
+    @property
+    def done(self) -> bool:
+        """It reached its end (False while it runs, and when it was discarded)."""
+        return self.fate is Fate.DONE
+
+    def wait(self, timeout: float | None = None) -> None:
+        """Block until the motion reached its end; MotionFailed (with the active alarms) if it was discarded,
+        NoAnswer if ``timeout`` [s] passed first."""
+        fate = self._tracker.wait(self.id, timeout)
+        if fate is Fate.DONE:
+            return
+        if fate is Fate.DISCARDED:
+            alarms = self._explain()
+            raise MotionFailed(f"motion {self.id} ({self.op}) was discarded before its end"
+                               + (f": {'; '.join(alarms)}" if alarms else " (a stop, or a lost service)"),
+                               self.id, alarms)
+        raise NoAnswer(f"motion {self.id} ({self.op}) is still {fate.value} after {timeout:g} s")
+
+    def __repr__(self) -> str:
+        return f"Motion({self.id}, {self.op}, {self.fate.value})"
+
+
+__all__ = ["Fate", "Motion", "Tracker"]
