@@ -219,9 +219,14 @@ class System:
         return time.time()
 
     def target(self) -> np.ndarray:
-        """The joints the servo holds the arm at: where a low-level stream must start."""
-        self.statuses()
-        return np.array(wait_until(lambda: self.statuses()[-1:], 1.0, 0.005, "a servo status")[-1].target)
+        """The joints the servo holds the arm at: where a low-level stream must start.
+
+        From a status the servo stamped after this call began: one still in transit may be
+        from before a servoON, which holds the arm where its brakes held it, not at the old target.
+        """
+        now = time.time()
+        fresh = self.statuses_until(lambda s: s.tm.to_seconds() >= now, "a servo status stamped now", 2.0)
+        return np.array([s for s in fresh if s.tm.to_seconds() >= now][-1].target)
 
     def consumed(self) -> int:
         """How many position commands the servo has taken from its FIFO so far."""
