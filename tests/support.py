@@ -1,4 +1,5 @@
-"""Test helpers: free loopback ports, service processes, a typed client over Zenoh, waits on events.
+"""Test helpers: free loopback ports, service processes, a typed client over Zenoh, waits on events,
+geometry. The live harness built on them (the system launched, the client-side arm) is ``harness.py``.
 
 Every test talks to real processes over real Zenoh sessions on 127.0.0.1 with
 multicast scouting off, on ports of its own, so that tests can run side by side.
@@ -22,7 +23,6 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from jara_arm import robots
 from jara_arm.launcher import cli
 from jara_arm.launcher.client import ArmClient
 from jara_arm.launcher.completion import bash_script
@@ -30,9 +30,7 @@ from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding
-from jara_arm.schema.codes import StateBit
 from jara_arm.schema.keys import ArmKeys, Service
-from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
 from jara_arm.services.runtime.realtime import realtime_thread
@@ -194,70 +192,7 @@ def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: s
         time.sleep(interval)
 
 
-class ServoTime:
-    """The servo's own clock and joints, read from its newest ``Servo/posFeedback`` sample.
-
-    A sample's ``tm`` is the time its cycle stands for (at rest the cycle's wall-clock
-    deadline; a cycle never runs before its deadline), so a sample stamped ``t`` or
-    later proves that the servo ran a cycle at ``t`` or later. Observation windows
-    ("nothing moves for 0.3 s") are measured on it: a window of the servo's time has
-    really been run through by the servo, however slowly the machine went, which a
-    wall-clock sleep does not prove.
-    """
-
-    def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
-        self._sub = session.declare_subscriber(keys.pos_feedback, zenoh.handlers.RingChannel(1))
-
-    def sample(self, timeout: float = 5.0) -> tuple[float, np.ndarray]:
-        """``(tm [s], joints)`` of a sample newer than the one read last, waiting for it."""
-        def newer():
-            got = self._sub.try_recv()
-            return None if got is None else [got]
-
-        sample = wait_until(newer, timeout, 0.002, "a servo feedback sample")[0]
-        msg = codec.decode_message(w.TIMED_JOINT_POS, sample.payload.to_bytes())
-        return msg.tm.to_seconds(), np.array(msg.pos)
-
-    def passes(self, seconds: float, timeout: float = 10.0) -> None:
-        """Until the servo has stamped a sample ``seconds`` [s] after now: an observation window
-        of ``seconds`` of the servo's own cycles."""
-        end = time.time() + seconds
-        wait_until(lambda: self.sample(timeout)[0] >= end, seconds + timeout, 0.002,
-                   f"the servo's clock {seconds:g} s on")
-
-    def settled(self, apart: float = 0.02, tol: float = 1e-9, timeout: float = 10.0) -> np.ndarray:
-        """Until two samples ``apart`` [s] of the servo's time show the same joints (within
-        ``tol``): the arm at rest and settled (the servo then holds it exactly where it is);
-        those joints."""
-        first = [self.sample(timeout)]
-
-        def still():
-            tm, q = self.sample(timeout)
-            t0, q0 = first[0]
-            if tm - t0 < apart:
-                return None
-            if np.abs(q - q0).max() <= tol:
-                return (q,)
-            first[0] = (tm, q)
-            return None
-
-        return wait_until(still, timeout, 0.002, "the arm at rest and settled")[0]
-
-
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
-
-
-@contextlib.contextmanager
-def launched(*args: str, timeout: float = 60.0) -> Iterator[tuple[Proc, int]]:
-    """``jara-arm up`` (the full system) on a port of its own, ready; stopped afterwards."""
-    port = free_port()
-    proc = Proc([*LAUNCHER, "up", "--listen", endpoint(port), *args])
-    try:
-        proc.wait_for_line("ready", timeout=timeout)
-        yield proc, port
-    finally:
-        code = proc.stop(signal.SIGINT, timeout=20)
-        assert code == 0, f"launcher exit {code}:\n{proc.output[-4000:]}"
 
 
 def wait_recording(recorder: Proc, timeout: float = 30.0) -> None:
@@ -278,45 +213,6 @@ def motion_settings(model: RobotModel, **changes: Any) -> MotionSettings:
         softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
         controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
     return dataclasses.replace(s, **changes)
-
-
-class LaunchedArm:
-    """A client of conftest's ``live`` system for tests that run the command line against it: back at the
-    ready pose, servo on, speed 100 %, before each test; ``endpoint`` is where a ``jara-arm`` process connects."""
-
-    def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        self.client = ArmClient(session)
-        self.model = robots.robot(robot_name)
-        self.proc: Proc | None = None  # the launcher, set by the fixture
-
-    @property
-    def endpoint(self) -> str:
-        assert self.proc is not None
-        return self.proc.argv[self.proc.argv.index("--listen") + 1]
-
-    def reset(self) -> None:
-        if self.client.state() & StateBit.MOVING:
-            self.client.middle(OP.stop)
-            self.client.wait_idle()
-        if self.client.state() & StateBit.ALARM:
-            self.client.common(OP.clearAlarms)
-        assert self.client.common(OP.servoON).ok
-        assert self.client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
-        assert self.client.middle(OP.setHome, {"jointPoint": self.model.ready_pose}).ok
-        assert self.client.middle(OP.goHome).ok
-        self.client.wait_idle()
-
-    def record(self) -> None:
-        """The fixture's hook to forget recorded feedback: these tests record none."""
-
-    def explain(self, lines: int = 40) -> str:
-        """What a failed check needs: the state, the active alarms and the system's last log lines."""
-        try:
-            state = f"state 0x{self.client.state():02x}, alarms {self.client.common(OP.getActiveAlarm)['alarms']}"
-        except Exception as exc:  # the report must not hide the failure it explains
-            state = f"state unknown ({exc})"
-        tail = "\n".join(self.proc.lines[-lines:]) if self.proc is not None else ""
-        return f"{state}\n{tail}"
 
 
 #: SCHED_FIFO priority of the tests' low-level streams and timed waits: below the servo's clock (40) and the cell bus (35).

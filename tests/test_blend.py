@@ -34,10 +34,10 @@ from jara_arm.services.planner.handover import Handover
 from jara_arm.services.planner.trajectory import PlannedMotion
 from jara_arm.services.runtime.rpc import answer
 
+from .harness import RecordingArm
 from .local_servo import LocalServo
 from .support import STREAM_PRIORITY, motion_settings, realtime_section, wait_until
 from .test_middle import HOLD_WINDOW, TOL_PATH, line_deviation, rel
-from .test_middle import Arm as MiddleArm
 
 pytestmark = pytest.mark.timeout(180)
 IIWA = robot("iiwa")
@@ -295,26 +295,18 @@ V_REST = 1e-3  # [m/s] at an exact stop it falls below this
 TOL_BLEND = 1e-3  # [m] what feedback may add to d (issue 15: within d of the corner)
 
 
-class Arm(MiddleArm):
-    """``test_middle.Arm`` with the blend distance reset to 0 and the feedback's servo times kept."""
-
-    def ext(self, name, args=None):
-        return self.client.ext(name, args)
+class Arm(RecordingArm):
+    """conftest's ``live`` client, its blend distance reset to 0 as well."""
 
     def reset(self) -> None:
         self.ok(self.ext(OP.setBlendDistance, {"distance": 0.0}))
         super().reset()
 
-    def recorded_timed(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(t [s], joints)`` of every feedback sample since ``record()``."""
-        msgs = [codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()) for s in iter(self.fb.try_recv, None)]
-        return np.array([m.tm.to_seconds() for m in msgs]), np.array([m.pos for m in msgs])
-
     def square(self, d: float) -> np.ndarray:
         """With blend distance ``d`` [m], the three LINs queued back to back; the polyline's corners (4, 3)."""
         self.ok(self.ext(OP.setBlendDistance, {"distance": d}))
         assert self.ext(OP.getBlendDistance)["distance"] == d
-        p0 = self.pose()[:, 3]
+        p0 = self.pose()[:3, 3]
         self.record()
         for leg in LEGS:
             self.ok(self.middle(OP.moveLinearCartesianRel, {"carPoint": rel(*leg)}))
@@ -400,7 +392,7 @@ def test_live_pause_in_a_blend_holds_and_resume_reaches_the_end(arm: Arm):
     arm.idle()
     state = arm.common(OP.getState)["state"]
     assert not state & (StateBit.PAUSED | StateBit.MOVING | StateBit.ALARM)
-    assert np.linalg.norm(arm.pose()[:, 3] - corners[-1]) < TOL_PATH  # the queue ran on to its end
+    assert np.linalg.norm(arm.pose()[:3, 3] - corners[-1]) < TOL_PATH  # the queue ran on to its end
 
 
 def test_live_stop_in_a_blend_ends_at_rest_and_the_queue_works_after(arm: Arm):
@@ -421,5 +413,5 @@ def test_live_stop_in_a_blend_ends_at_rest_and_the_queue_works_after(arm: Arm):
     arm.record()
     arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(0.0, 0.0, 0.03)}))
     arm.idle()
-    assert np.linalg.norm(arm.pose()[:, 3] - (rest + [0.0, 0.0, 0.03])) < TOL_PATH
+    assert np.linalg.norm(arm.pose()[:3, 3] - (rest + [0.0, 0.0, 0.03])) < TOL_PATH
     assert line_deviation(arm.points(arm.recorded()), rest, rest + [0.0, 0.0, 0.03]) < TOL_PATH

@@ -40,7 +40,8 @@ from jara_arm.schema.operations import ALL, MIDDLE, OP
 from jara_arm.schema.types import Alarm, CarPosWithElbow, Time, hg_matrix
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import LaunchedArm, Proc, ServoTime, bash_complete, endpoint, free_port, wait_until
+from .harness import LiveArm
+from .support import Proc, bash_complete, endpoint, free_port, wait_until
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 
@@ -318,15 +319,8 @@ def test_the_completion_command_prints_the_script(capsys: pytest.CaptureFixture[
 
 # -- live: the commands as real processes against `jara-arm up` ----------------------------------------
 
-class Arm(LaunchedArm):
-    """The live system's client (conftest.py ``live``), with the servo's clock."""
-
-    def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        super().__init__(session, robot_name)
-        self.servo_time = ServoTime(session, self.client.keys)
-
-    def joints(self) -> np.ndarray:
-        return np.asarray(self.client.common(OP.getFeedbackPosJoint)["pos"])
+class Arm(LiveArm):
+    """The live system's client (conftest.py ``live``), running ``jara-arm`` commands against it."""
 
     def run(self, *argv: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
         """``jara-arm <argv>`` as a process, a client of the live system."""

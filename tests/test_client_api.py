@@ -17,11 +17,8 @@ from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import ALL
 from jara_arm.schema.types import CartesianSpeed
 
-from .support import LaunchedArm, endpoint, free_port, wait_until
-
-
-class Arm(LaunchedArm):
-    """conftest's hooks; the API under test is opened by each test on its own session."""
+from .harness import LiveArm
+from .support import endpoint, free_port, wait_until
 
 
 @pytest.fixture(scope="module", params=["iiwa"])
@@ -30,7 +27,7 @@ def robot_name(request: pytest.FixtureRequest) -> str:
 
 
 @pytest.fixture
-def api(arm: Arm) -> Iterator[ClientArm]:
+def api(arm: LiveArm) -> Iterator[ClientArm]:
     with ClientArm.connect(arm.endpoint, timeout=10.0) as client:
         yield client
 
@@ -47,7 +44,7 @@ def test_no_router_is_a_no_answer_within_the_timeout() -> None:
         ClientArm.connect(endpoint(free_port()), timeout=0.5)
 
 
-def test_live_typed_calls_and_a_refusal_with_its_code(api: ClientArm, arm: Arm) -> None:
+def test_live_typed_calls_and_a_refusal_with_its_code(api: ClientArm, arm: LiveArm) -> None:
     info = api.getManipInfo()
     assert info.axisNum == arm.model.axis_num and api.state & StateBit.SERVO_ON
     api.setMaxSpeedCartesian(CartesianSpeed(0.2, 0.8))
@@ -60,7 +57,7 @@ def test_live_typed_calls_and_a_refusal_with_its_code(api: ClientArm, arm: Arm) 
     api.setMaxSpeedCartesian(CartesianSpeed(0.25, 1.0))
 
 
-def test_live_a_blocking_move_returns_once_arrived(api: ClientArm, arm: Arm) -> None:
+def test_live_a_blocking_move_returns_once_arrived(api: ClientArm, arm: LiveArm) -> None:
     api.setSpeedJoint(60)
     start = np.array(api.joints[:arm.model.axis_num])
     delta = np.zeros(arm.model.axis_num)
@@ -70,7 +67,7 @@ def test_live_a_blocking_move_returns_once_arrived(api: ClientArm, arm: Arm) -> 
     np.testing.assert_allclose(api.joints[:arm.model.axis_num], start + delta, atol=1e-3)
 
 
-def test_live_an_asynchronous_move_runs_while_the_script_goes_on(api: ClientArm, arm: Arm) -> None:
+def test_live_an_asynchronous_move_runs_while_the_script_goes_on(api: ClientArm, arm: LiveArm) -> None:
     api.setSpeedCartesian(50)
     z0 = api.getFeedbackPosCartesian().carPos[2, 3]
     first = api.moveLinearCartesianRel(rel(dz=-0.05), wait=False)
@@ -83,7 +80,7 @@ def test_live_an_asynchronous_move_runs_while_the_script_goes_on(api: ClientArm,
     assert abs(api.getFeedbackPosCartesian().carPos[2, 3] - z0) < 1e-3
 
 
-def test_live_a_motion_discarded_by_a_stop_fails_its_wait(api: ClientArm, arm: Arm) -> None:
+def test_live_a_motion_discarded_by_a_stop_fails_its_wait(api: ClientArm, arm: LiveArm) -> None:
     api.setSpeedJoint(20)
     delta = [0.0] * arm.model.axis_num
     delta[0] = 0.6

@@ -20,7 +20,8 @@ from jara_arm.schema.planner import MotionRequest
 from jara_arm.services.planner.collision import PathChecker
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 
-from .support import ServoTime, client_session, launched, motion_settings
+from .harness import ServoTime, launched
+from .support import client_session, motion_settings
 
 IIWA = robot("iiwa")
 READY = np.array(IIWA.ready_pose)

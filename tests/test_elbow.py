@@ -31,9 +31,9 @@ from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 from jara_arm.services.planner.profile import cartesian_path_speed
 from jara_arm.services.planner.trajectory import PlannedMotion
 
+from .harness import RecordingArm as Arm  # noqa: F401 - the ``live`` fixture's client (conftest.py)
 from .support import car, pose
 from .support import motion_settings as settings
-from .test_middle import Arm  # noqa: F401 - the ``live`` fixture's client (conftest.py)
 
 pytestmark = pytest.mark.timeout(180)
 DT = 1e-3

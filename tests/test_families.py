@@ -17,18 +17,12 @@ import time
 import numpy as np
 import pinocchio as pin
 import pytest
-import zenoh
 
-from jara_arm.kinematics import Kinematics
-from jara_arm.launcher.client import ArmClient
-from jara_arm.robots import robot
-from jara_arm.schema import codec
-from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, hg_matrix
 
-from .support import ServoTime
+from .harness import RecordingArm
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -42,7 +36,7 @@ TOL_POS = 1e-4  # [m] reached position (feedback, settled), 1-6 axes
 TOL_ROT = 1e-3  # [rad]
 TOL_POSE_7 = 1e-5  # [m, rad] 7-axis pose (issue 5)
 TOL_ELBOW = 1e-3  # [rad]
-#: [s] observation window, of the servo's own time (support.ServoTime): after a refusal was
+#: [s] observation window, of the servo's own time (harness.ServoTime): after a refusal was
 #: answered, nothing may move in it.
 QUIET_WINDOW = 0.1
 
@@ -73,56 +67,9 @@ def rot_err(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(pin.log3(a[:3, :3] @ b[:3, :3].T)))
 
 
-class Arm:
-    """A client of the live system of one family, plus FK and a feedback recorder."""
-
-    def __init__(self, session: zenoh.Session, name: str) -> None:
-        self.client = ArmClient(session)
-        self.model = robot(name)
-        self.n = self.model.axis_num
-        self.kin = Kinematics(self.model, seed_table=0)
-        self.fb = session.declare_subscriber(self.client.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
-        self.servo_time = ServoTime(session, self.client.keys)
-
-    def ok(self, reply) -> None:
-        assert reply.id == ReturnCode.OK, f"{reply}\n{self.log()}"
-
-    def middle(self, name, args=None):
-        return self.client.middle(name, args)
-
-    def common(self, name, args=None):
-        return self.client.common(name, args)
-
-    def joints(self) -> np.ndarray:
-        return np.asarray(self.common(OP.getFeedbackPosJoint)["pos"])
-
-    def feedback(self) -> CarPosWithElbow:
-        return self.middle(OP.getFeedbackPosCartesian)["pos"]
-
-    def pose(self) -> np.ndarray:
-        T = np.eye(4)
-        T[:3] = np.asarray(self.feedback().carPos)
-        return T
-
-    def fk(self, q=None) -> np.ndarray:
-        """Flange pose [arm frame] of joint feedback (identity offsets in every test but one)."""
-        return self.kin.fk((self.joints() if q is None else q)[: self.n]).homogeneous
-
-    def record(self) -> None:
-        while self.fb.try_recv() is not None:
-            pass
-
-    def recorded(self) -> np.ndarray:
-        return self.recorded_timed()[1]
-
-    def recorded_timed(self) -> tuple[np.ndarray, np.ndarray]:
-        """The feedback since :meth:`record`: the servo's times [s] and joints."""
-        tm, out = [], []
-        while (s := self.fb.try_recv()) is not None:
-            msg = codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes())
-            tm.append(msg.tm.to_seconds())
-            out.append(msg.pos)
-        return np.asarray(tm), np.asarray(out)
+class Arm(RecordingArm):
+    """conftest's ``live`` client of one family: a ``RecordingArm`` whose motions run to their end, settled,
+    home included."""
 
     def moving_time(self, name, args) -> float:
         """[s] of the servo's own time the arm moved in motion ``name`` (from leaving where it was to
@@ -137,22 +84,19 @@ class Arm:
 
     def run(self, name, args) -> None:
         """A motion that must be accepted; returns once the arm is idle and settled."""
-        proc = getattr(self, "proc", None)
-        mark = len(proc.lines) if proc else 0
+        mark = len(self.proc.lines) if self.proc else 0
         self.ok(self.middle(name, args))
         self.client.wait_idle(60.0)
         self.settle()
         state = self.client.state()
         assert not state & StateBit.ALARM, f"{name}: alarm (state 0x{state:02x})\n" + self.log()
-        aborted = [ln for ln in (proc.lines[mark:] if proc else []) if "abort (" in ln or "ran dry" in ln]
+        aborted = [ln for ln in (self.proc.lines[mark:] if self.proc else []) if "abort (" in ln or "ran dry" in ln]
         assert not aborted, f"{name}: the system aborted the motion (streaming, not a family rule):\n" + \
             "\n".join(aborted)
 
     def log(self, lines: int = 15) -> str:
         """The last lines of the system's log that say why a motion ended early."""
-        proc = getattr(self, "proc", None)
-        keys = ("WARNING", "ERROR", "alarm", "abort", "refused", "servo o")
-        return "\n".join([ln for ln in proc.lines if any(k in ln for k in keys)][-lines:]) if proc else ""
+        return self.log_tail(lines, keys=("WARNING", "ERROR", "alarm", "abort", "refused", "servo o"))
 
     def settle(self, tol: float = 1e-7, timeout: float = 2.0) -> None:
         """Until the joint feedback stops changing (the servo has caught up with the last command)."""
@@ -167,21 +111,6 @@ class Arm:
 
     def home(self) -> None:
         self.run(OP.goHome, None)
-
-    def reset(self) -> None:
-        if self.client.state() & StateBit.MOVING:
-            self.middle(OP.stop)
-            self.client.wait_idle()
-        if self.client.state() & StateBit.ALARM:
-            self.common(OP.clearAlarms)
-        self.ok(self.common(OP.servoON))
-        self.ok(self.middle(OP.setBaseOffset, {"offset": hg_matrix()}))
-        self.ok(self.middle(OP.setControlPointOffset, {"offset": hg_matrix()}))
-        self.ok(self.common(OP.setSoftLimitJoint, {"softLimit": self.model.hard_limits}))
-        self.ok(self.middle(OP.setSpeedJoint, {"spdRatio": 100}))
-        self.ok(self.middle(OP.setSpeedCartesian, {"spdRatio": 100}))
-        self.ok(self.middle(OP.setHome, {"jointPoint": self.model.ready_pose}))
-        self.home()
 
 
 @pytest.fixture(scope="module", params=NAMES)
@@ -347,13 +276,13 @@ def test_ignored_components_are_ignored(arm: Arm):
 def test_cartesian_feedback_per_family(arm: Arm):
     name, n = arm.model.name, arm.n
     q = arm.joints()
-    fb0 = arm.feedback()
+    fb0 = arm.cartesian()
     T0 = arm.pose()
     if n < 7:
         assert fb0.elbow == 0.0
     step = np.full(n, 0.05)
     arm.run(OP.movePTPJointRel, {"jointPoints": tuple(step)})
-    fb = arm.feedback()
+    fb = arm.cartesian()
     T = arm.pose()
     q = arm.joints()
     if name == "cartesian1":  # reports its X
@@ -417,7 +346,7 @@ def test_gripper(arm: Arm):
 
 
 def _elbow_check(arm: Arm, goal: np.ndarray, elbow: float) -> None:
-    fb = arm.feedback()
+    fb = arm.cartesian()
     T = arm.pose()
     assert abs(fb.elbow - elbow) < TOL_ELBOW, (fb.elbow, elbow)
     assert abs(arm.kin.elbow_angle(arm.joints()[:7]) - fb.elbow) < 1e-9  # reports the measured one
@@ -429,7 +358,7 @@ def _elbow_check(arm: Arm, goal: np.ndarray, elbow: float) -> None:
 def test_elbow_reached_and_interpolated(arm: Arm, op: str):
     only(*SEVEN)(arm)
     T0 = arm.pose()
-    e0 = arm.feedback().elbow
+    e0 = arm.cartesian().elbow
     d, R = np.array([0.04, 0.05, -0.03]), rot((0.3, 1.0, 0.2), 0.15)
     goal = moved(T0, d, R)
     e1 = e0 + 0.4
@@ -447,7 +376,7 @@ def test_elbow_reached_and_interpolated(arm: Arm, op: str):
 def test_elbow_on_circ(arm: Arm):
     only(*SEVEN)(arm)
     T0 = arm.pose()
-    e0 = arm.feedback().elbow
+    e0 = arm.cartesian().elbow
     via, goal = moved(T0, (0.04, 0.04, 0.0)), moved(T0, (0.08, 0.0, -0.02), rot((0, 0, 1), 0.2))
     e1 = e0 - 0.35
     arm.record()
@@ -463,13 +392,13 @@ def test_elbow_ignored_below_seven_axes_and_used_on_seven(arm: Arm):
     if not ACCEPTS[arm.model.name][0]:
         pytest.skip("no LIN on this family")
     T1 = moved(arm.pose(), (0.02, 0.0, 0.01))
-    e = arm.feedback().elbow if arm.n == 7 else 0.0
+    e = arm.cartesian().elbow if arm.n == 7 else 0.0
     arm.run(OP.movePTPCartesianAbs, {"carPoint": car(T1, e)})
     qa = arm.joints()
     arm.home()
     arm.run(OP.movePTPCartesianAbs, {"carPoint": car(T1, e + 0.5)})
     if arm.n == 7:
-        assert abs(arm.feedback().elbow - (e + 0.5)) < TOL_ELBOW
+        assert abs(arm.cartesian().elbow - (e + 0.5)) < TOL_ELBOW
         assert np.abs(arm.joints() - qa).max() > 0.05
     else:
         assert np.abs(arm.joints() - qa).max() < 1e-4

@@ -18,18 +18,16 @@ import numpy as np
 import pytest
 import zenoh
 
-from jara_arm.launcher.client import ArmClient
-from jara_arm.robots import robot
 from jara_arm.schema.codes import AlarmCode, ReturnCode, StateBit
-from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.operations import OP, Interface
 
-from .support import ServoTime, wait_until
+from .harness import LiveArm
+from .support import Proc, wait_until
 
 pytestmark = pytest.mark.timeout(180)
 #: [s] a motion of these tests takes well under this at the speeds set.
 MOTION_TIMEOUT = 30.0
-#: [s] of the servo's own time (support.ServoTime) after refused requests: nothing may move in it.
+#: [s] of the servo's own time (harness.ServoTime) after refused requests: nothing may move in it.
 QUIET_WINDOW = 0.3
 
 
@@ -59,18 +57,15 @@ class Watch:
         return [json.loads(text) for _key, _enc, text in got]
 
 
-class Arm:
-    """The live system seen from generic tools: JSON strings in, ``to_string()`` out."""
+class Arm(LiveArm):
+    """The live system seen from generic tools: JSON strings in, ``to_string()`` out. The tests talk only
+    through these; conftest's reset uses the typed client."""
 
-    def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        self.session = session
-        self.model = robot(robot_name)
-        self.client = ArmClient(session)  # only for conftest's wait_alive: the tests talk JSON
-        self.keys = ArmKeys(self.client.keys.arm)
-        self.state = Watch(session, self.keys.state)
+    def __init__(self, session: zenoh.Session, robot_name: str, proc: Proc | None = None) -> None:
+        super().__init__(session, robot_name, proc=proc)
+        self.states = Watch(session, self.keys.state)
         self.alarms = Watch(session, self.keys.alarm)
         self.logs = Watch(session, self.keys.log())
-        self.servo_time = ServoTime(session, self.keys)  # the test's clock, not a generic tool
 
     def get(self, key: str, text: str = "{}") -> dict[str, Any]:
         """``z_get -s <key> -p <text>``: a str payload, no encoding; the one reply's text as JSON."""
@@ -83,37 +78,20 @@ class Arm:
     def call(self, interface: Interface, op: str, args: dict[str, Any] | None = None) -> dict[str, Any]:
         return self.get(self.keys.interface(interface, op), json.dumps(args or {}))
 
-    def ok(self, interface: Interface, op: str, args: dict[str, Any] | None = None) -> dict[str, Any]:
+    def json_ok(self, interface: Interface, op: str, args: dict[str, Any] | None = None) -> dict[str, Any]:
         reply = self.call(interface, op, args)
         assert reply["id"] == ReturnCode.OK, (op, reply)
         return reply
 
     def state_bits(self) -> int:
-        return int(self.ok(Interface.COMMON, OP.getState)["state"])
+        return int(self.json_ok(Interface.COMMON, OP.getState)["state"])
 
-    def joints(self) -> np.ndarray:
-        return np.asarray(self.ok(Interface.COMMON, OP.getFeedbackPosJoint)["pos"], dtype=float)
+    def json_joints(self) -> np.ndarray:
+        return np.asarray(self.json_ok(Interface.COMMON, OP.getFeedbackPosJoint)["pos"], dtype=float)
 
-    def idle(self, timeout: float = MOTION_TIMEOUT) -> None:
+    def json_idle(self, timeout: float = MOTION_TIMEOUT) -> None:
         """Until the arm neither moves nor has motions queued (the command's state)."""
         wait_until(lambda: not self.state_bits() & StateBit.MOVING, timeout, 0.05, "the arm idle")
-
-    def reset(self) -> None:
-        bits = self.state_bits()
-        if bits & StateBit.MOVING:
-            self.ok(Interface.MIDDLE, OP.stop)
-            self.idle()
-        if self.state_bits() & StateBit.ALARM:
-            self.ok(Interface.COMMON, OP.clearAlarms)
-        self.ok(Interface.COMMON, OP.servoON)
-        self.ok(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 100})
-        self.ok(Interface.MIDDLE, OP.setSpeedCartesian, {"spdRatio": 100})
-        self.ok(Interface.MIDDLE, OP.setHome, {"jointPoint": list(self.model.ready_pose)})
-        self.ok(Interface.MIDDLE, OP.goHome)
-        self.idle()
-
-    def record(self) -> None:
-        """Nothing recorded here beyond the watches, which are read from marks."""
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +102,7 @@ def robot_name() -> str:
 
 def moved_and_settled(arm: Arm, mark: int) -> bool:
     """The state publications since ``mark`` show the arm moving, and the newest one idle."""
-    seen = arm.state.since(mark)
+    seen = arm.states.since(mark)
     return (any(m["state"] & StateBit.MOVING for m in seen)
             and not seen[-1]["state"] & StateBit.MOVING and seen[-1]["queueLength"] == 0)
 
@@ -138,28 +116,28 @@ def test_a_whole_session_from_generic_tools(arm: Arm):
     assert arm.state_bits() & StateBit.SERVO_ON
 
     # a PTP in joint space
-    q0 = arm.joints()
+    q0 = arm.json_joints()
     target = q0.copy()
     target[: arm.model.axis_num] += np.array([0.2, -0.15, 0.1, 0.15, -0.1, 0.1, 0.2])[: arm.model.axis_num]
-    mark = arm.state.mark()
-    arm.ok(Interface.MIDDLE, OP.movePTPJointAbs, {"jointPoints": target.tolist()})
+    mark = arm.states.mark()
+    arm.json_ok(Interface.MIDDLE, OP.movePTPJointAbs, {"jointPoints": target.tolist()})
     wait_until(lambda: moved_and_settled(arm, mark), MOTION_TIMEOUT, 0.02,
-               "state publications: moving, then idle", explain=lambda: arm.state.since(mark)[-5:])
-    assert np.abs(arm.joints() - target).max() < 1e-3
+               "state publications: moving, then idle", explain=lambda: arm.states.since(mark)[-5:])
+    assert np.abs(arm.json_joints() - target).max() < 1e-3
 
     # a LIN: 5 cm down from where the PTP ended, the pose as getFeedbackPosCartesian gave it
-    pose = arm.ok(Interface.MIDDLE, OP.getFeedbackPosCartesian)["pos"]
+    pose = arm.json_ok(Interface.MIDDLE, OP.getFeedbackPosCartesian)["pos"]
     goal = json.loads(json.dumps(pose))
     goal["carPos"][2][3] -= 0.05
-    mark = arm.state.mark()
-    arm.ok(Interface.MIDDLE, OP.moveLinearCartesianAbs, {"carPoint": goal})
+    mark = arm.states.mark()
+    arm.json_ok(Interface.MIDDLE, OP.moveLinearCartesianAbs, {"carPoint": goal})
     wait_until(lambda: moved_and_settled(arm, mark), MOTION_TIMEOUT, 0.02,
-               "state publications: moving, then idle", explain=lambda: arm.state.since(mark)[-5:])
-    now = arm.ok(Interface.MIDDLE, OP.getFeedbackPosCartesian)["pos"]["carPos"]
+               "state publications: moving, then idle", explain=lambda: arm.states.since(mark)[-5:])
+    now = arm.json_ok(Interface.MIDDLE, OP.getFeedbackPosCartesian)["pos"]["carPos"]
     assert np.abs(np.asarray(now)[:, 3] - np.asarray(goal["carPos"])[:, 3]).max() < 1e-3, (now, goal)
 
     # the state, read as a generic tool reads it
-    reply = arm.ok(Interface.COMMON, OP.getState)
+    reply = arm.json_ok(Interface.COMMON, OP.getState)
     assert reply["state"] & StateBit.SERVO_ON and not reply["state"] & StateBit.MOVING, reply
 
     # the logs a generic subscriber printed: JSON LogRecords, the planner's acceptance of both motions
@@ -172,7 +150,7 @@ def test_a_whole_session_from_generic_tools(arm: Arm):
 
 
 def test_an_alarm_seen_and_cleared_from_generic_tools(arm: Arm):
-    alarms_mark, state_mark = arm.alarms.mark(), arm.state.mark()
+    alarms_mark, state_mark = arm.alarms.mark(), arm.states.mark()
     arm.session.put(arm.keys.estop, "")  # z_put -k <estop> -p ''
 
     def events(kind: str) -> list[dict[str, Any]]:
@@ -182,23 +160,23 @@ def test_an_alarm_seen_and_cleared_from_generic_tools(arm: Arm):
     wait_until(lambda: events("raised"), 10.0, 0.02, "the e-stop alarm event",
                explain=lambda: arm.alarms.since(alarms_mark))
     assert events("raised")[0]["alarm"]["type"] == "FAULT"
-    wait_until(lambda: any(m["state"] & StateBit.ALARM for m in arm.state.since(state_mark)), 10.0, 0.02,
+    wait_until(lambda: any(m["state"] & StateBit.ALARM for m in arm.states.since(state_mark)), 10.0, 0.02,
                "the alarm bit in the state publications")
-    active = arm.ok(Interface.COMMON, OP.getActiveAlarm)["alarms"]
+    active = arm.json_ok(Interface.COMMON, OP.getActiveAlarm)["alarms"]
     assert [a["code"] for a in active] == [AlarmCode.EMERGENCY_STOP], active
     wait_until(lambda: not arm.state_bits() & StateBit.SERVO_ON, 5.0, 0.02, "the FAULT to switch the servo off")
-    arm.idle()
+    arm.json_idle()
     # a cause may take a moment to go: clearAlarms until it says OK
     wait_until(lambda: arm.call(Interface.COMMON, OP.clearAlarms)["id"] == ReturnCode.OK, 5.0, 0.05,
                "clearAlarms to succeed", explain=lambda: arm.call(Interface.COMMON, OP.clearAlarms))
     wait_until(lambda: events("cleared"), 10.0, 0.02, "the cleared event",
                explain=lambda: arm.alarms.since(alarms_mark))
-    assert arm.ok(Interface.COMMON, OP.getActiveAlarm)["alarms"] == []
+    assert arm.json_ok(Interface.COMMON, OP.getActiveAlarm)["alarms"] == []
 
 
 def test_bad_input_from_generic_tools_is_refused_in_json_and_nothing_moves(arm: Arm):
-    q0 = arm.joints()
-    mark = arm.state.mark()
+    q0 = arm.json_joints()
+    mark = arm.states.mark()
     bad_type = arm.call(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": "fast"})
     assert bad_type["id"] == ReturnCode.VALUE_ERR and bad_type["comment"].startswith("spdRatio"), bad_type
     bad_json = arm.get(arm.keys.interface(Interface.MIDDLE, OP.movePTPJointAbs), '{"jointPoints": [0.1,')
@@ -208,5 +186,5 @@ def test_bad_input_from_generic_tools_is_refused_in_json_and_nothing_moves(arm: 
     unknown = arm.get(arm.keys.interface(Interface.MIDDLE).replace("*", "movePTPJoint"))
     assert unknown["id"] == ReturnCode.NOT_IMPLEMENTED, unknown
     arm.servo_time.passes(QUIET_WINDOW)  # a motion wrongly accepted would move the arm in it
-    assert not any(m["state"] & StateBit.MOVING for m in arm.state.since(mark))
-    assert np.abs(arm.joints() - q0).max() < 1e-4
+    assert not any(m["state"] & StateBit.MOVING for m in arm.states.since(mark))
+    assert np.abs(arm.json_joints() - q0).max() < 1e-4

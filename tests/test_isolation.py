@@ -33,23 +33,22 @@ from jara_arm.services.runtime.timing import FEEDBACK_BLOCK_CYCLES
 from jara_arm.services.runtime.wire import decode_sample
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import LAUNCHER, Proc, client_session, endpoint, free_port, launched, wait_until
+from .harness import LiveArm, launched, listening
+from .support import LAUNCHER, Proc, client_session, endpoint, free_port, wait_until
 
 BAD_CLIENT = Path(__file__).parents[1] / "bench" / "bad_client.py"
 ROBOT = "iiwa"
 ARRIVED = 1e-3  #: [rad] a move has arrived when every joint is this close to its target
 
 
-class Cell:
+class Cell(LiveArm):
     """A client of the running system: moves the arm, and keeps every alarm raised."""
 
     def __init__(self, session: zenoh.Session, proc: Proc) -> None:
-        self.client = ArmClient(session)
-        self.proc = proc
+        super().__init__(session, ROBOT, proc=proc)
         self.raised: list[str] = []
         self._alarms = session.declare_subscriber(any_arm_alarm(), self._on_alarm)
-        model = robots.robot(ROBOT)
-        a, b = np.array(model.ready_pose), np.array(model.ready_pose)
+        a, b = np.array(self.model.ready_pose), np.array(self.model.ready_pose)
         a[0], b[0], a[1], b[1] = a[0] - 0.3, a[0] + 0.3, a[1] - 0.2, a[1] + 0.2
         self.poses = (a, b)
         self.moves = 0
@@ -59,9 +58,6 @@ class Cell:
         event = decode_sample(messages.ALARM_EVENT, sample)
         if event.event == "raised":
             self.raised.append(f"0x{event.alarm.code:03x} {event.alarm.type.value}: {event.alarm.description}")
-
-    def explain(self) -> str:
-        return "\n".join(self.proc.lines[-40:])
 
     def start(self) -> None:
         self.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR))
@@ -270,10 +266,8 @@ def test_a_slow_observer_of_a_secure_cell_hurts_nobody(tmp_path: Path) -> None:
     cell_dir = init_cell(tmp_path / "cell")
     issue(cell_dir, "alice", Role.OPERATOR)
     issue(cell_dir, "olga", Role.OBSERVER)
-    ep = f"tls/127.0.0.1:{free_port()}"
-    proc = Proc([*LAUNCHER, "up", "--robot", ROBOT, "--secure", str(tmp_path / "cell"), "--listen", ep])
-    try:
-        proc.wait_for_line("ready", timeout=90)
+    with launched("--robot", ROBOT, "--secure", str(tmp_path / "cell"), scheme="tls", timeout=90) as (proc, _):
+        ep = listening(proc)
         conf = zenoh.Config.from_file(str(cell_dir.zenoh_file("alice")))
         conf.insert_json5("connect/endpoints", f'["{ep}"]')
         with zenoh.open(conf) as session, bad_client(
@@ -283,5 +277,3 @@ def test_a_slow_observer_of_a_secure_cell_hurts_nobody(tmp_path: Path) -> None:
             c.swing(15.0)
             assert received(olga) > 0, olga.output
             c.close()
-    finally:
-        assert proc.stop(signal.SIGINT, timeout=20) == 0, proc.output[-4000:]

@@ -9,89 +9,28 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import zenoh
 
-from jara_arm.kinematics import Kinematics
-from jara_arm.launcher.client import ArmClient
-from jara_arm.robots import robot
-from jara_arm.schema import codec
-from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, hg_matrix
 
-from .support import ServoTime, wait_until
+from .harness import RecordingArm
+from .support import wait_until
 
 pytestmark = pytest.mark.timeout(180)
 TOL_PATH = 0.5e-3  # [m] executed deviation allowed (issue 3)
-#: [s] observation windows, of the servo's own time (support.ServoTime): after the request was
+#: [s] observation windows, of the servo's own time (harness.ServoTime): after the request was
 #: answered (and the arm settled), nothing may move in them.
 HOLD_WINDOW = 0.3
 QUIET_WINDOW = 0.2
 
 
-class Arm:
-    """A client of the live system plus a feedback recorder and FK."""
-
-    def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        self.client = ArmClient(session)
-        self.model = robot(robot_name)
-        self.kin = Kinematics(self.model)
-        self.fb = session.declare_subscriber(self.client.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
-        self.servo_time = ServoTime(session, self.client.keys)
-
-    def ok(self, reply) -> None:
-        assert reply.id == ReturnCode.OK, reply
-
-    def middle(self, name, args=None):
-        return self.client.middle(name, args)
-
-    def common(self, name, args=None):
-        return self.client.common(name, args)
-
-    def joints(self) -> np.ndarray:
-        return np.asarray(self.common(OP.getFeedbackPosJoint)["pos"])
-
-    def pose(self) -> np.ndarray:
-        return np.asarray(self.middle(OP.getFeedbackPosCartesian)["pos"].carPos)
+class Arm(RecordingArm):
+    """conftest's ``live`` client: a ``RecordingArm``."""
 
     def servo_moving(self) -> bool:
         """The servo's own bit 0x02: the arm really moves (the command's also counts queued motions)."""
-        return bool(self.client.servo(OP.getState)["state"] & StateBit.MOVING)
-
-    def record(self) -> None:
-        while self.fb.try_recv() is not None:
-            pass
-
-    def recorded(self) -> np.ndarray:
-        out = []
-        while (s := self.fb.try_recv()) is not None:
-            out.append(codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()).pos)
-        return np.asarray(out)
-
-    def points(self, q: np.ndarray) -> np.ndarray:
-        """Flange positions [m] (identity base and control point offsets) of joint samples."""
-        n = self.model.axis_num
-        return np.array([self.kin.fk(qi[:n]).translation for qi in q])
-
-    def idle(self, timeout: float = 60.0) -> None:
-        self.client.wait_idle(timeout)
-
-    def reset(self) -> None:
-        if self.common(OP.getState)["state"] & StateBit.MOVING:
-            self.middle(OP.stop)
-            self.idle()
-        if self.common(OP.getState)["state"] & StateBit.ALARM:
-            self.common(OP.clearAlarms)
-        self.ok(self.common(OP.servoON))
-        self.ok(self.middle(OP.setBaseOffset, {"offset": hg_matrix()}))
-        self.ok(self.middle(OP.setControlPointOffset, {"offset": hg_matrix()}))
-        self.ok(self.common(OP.setSoftLimitJoint, {"softLimit": self.model.hard_limits}))
-        self.ok(self.middle(OP.setSpeedJoint, {"spdRatio": 100}))
-        self.ok(self.middle(OP.setSpeedCartesian, {"spdRatio": 100}))
-        self.ok(self.middle(OP.setHome, {"jointPoint": self.model.ready_pose}))
-        self.ok(self.middle(OP.goHome))
-        self.idle()
+        return bool(self.servo(OP.getState)["state"] & StateBit.MOVING)
 
 
 def rel(dx=0.0, dy=0.0, dz=0.0) -> CarPosWithElbow:
@@ -136,18 +75,18 @@ def test_ptp_joint_axes_start_and_stop_together_on_the_line(arm: Arm):
 
 
 def test_lin_is_straight(arm: Arm):
-    p0 = arm.pose()[:, 3]
+    p0 = arm.pose()[:3, 3]
     d = np.array([0.1, -0.12, -0.1])
     arm.record()
     arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(*d)}))
     arm.idle()
     pts = arm.points(arm.recorded())
     assert line_deviation(pts, p0, p0 + d) < TOL_PATH
-    assert np.linalg.norm(arm.pose()[:, 3] - (p0 + d)) < TOL_PATH
+    assert np.linalg.norm(arm.pose()[:3, 3] - (p0 + d)) < TOL_PATH
 
 
 def test_circ_is_on_the_circle_through_the_via_point(arm: Arm):
-    p0 = arm.pose()[:, 3]
+    p0 = arm.pose()[:3, 3]
     via, target = np.array([0.06, 0.06, 0.0]), np.array([0.0, 0.12, -0.02])
     arm.record()
     arm.ok(arm.middle(OP.moveCircularCartesianRel, {"carPointR": rel(*via), "carPointT": rel(*target)}))
@@ -163,7 +102,7 @@ def test_circ_is_on_the_circle_through_the_via_point(arm: Arm):
     u = np.clip(np.einsum("ij,ij->i", (p0 + via) - a, b - a) / np.maximum(np.einsum("ij,ij->i", b - a, b - a), 1e-18),
                 0.0, 1.0)
     assert np.min(np.linalg.norm(a + u[:, None] * (b - a) - (p0 + via), axis=1)) < TOL_PATH
-    assert np.linalg.norm(arm.pose()[:, 3] - (p0 + target)) < TOL_PATH
+    assert np.linalg.norm(arm.pose()[:3, 3] - (p0 + target)) < TOL_PATH
 
 
 def test_relative_moves_compose_through_the_queue(arm: Arm):
@@ -174,25 +113,25 @@ def test_relative_moves_compose_through_the_queue(arm: Arm):
         arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": tuple(step)}))
     arm.idle()
     assert np.abs(arm.joints()[: arm.model.axis_num] - (q0 + 3 * step)).max() < 1e-3
-    p0 = arm.pose()[:, 3]
+    p0 = arm.pose()[:3, 3]
     arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(dz=-0.05)}))
     arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(dx=0.05)}))
     arm.idle()
-    assert np.linalg.norm(arm.pose()[:, 3] - (p0 + [0.05, 0, -0.05])) < TOL_PATH
+    assert np.linalg.norm(arm.pose()[:3, 3] - (p0 + [0.05, 0, -0.05])) < TOL_PATH
 
 
 def test_pause_stops_on_the_line_and_resume_reaches_the_target(arm: Arm):
-    p0 = arm.pose()[:, 3]
+    p0 = arm.pose()[:3, 3]
     d = np.array([0.05, 0.2, -0.05])
     arm.ok(arm.middle(OP.setSpeedCartesian, {"spdRatio": 50}))
     arm.record()
     arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(*d)}))
-    wait_until(lambda: np.linalg.norm(arm.pose()[:, 3] - p0) > 0.25 * np.linalg.norm(d), 10.0, 0.01,
+    wait_until(lambda: np.linalg.norm(arm.pose()[:3, 3] - p0) > 0.25 * np.linalg.norm(d), 10.0, 0.01,
                "the LIN a quarter of the way")
     arm.ok(arm.middle(OP.pause))
     wait_until(lambda: arm.common(OP.getState)["state"] & StateBit.PAUSED, 2.0, what="paused bit")
     held_q = arm.servo_time.settled()  # braked to rest: the servo's own joints
-    held = arm.pose()[:, 3]
+    held = arm.pose()[:3, 3]
     arm.servo_time.passes(HOLD_WINDOW)  # paused: nothing may move the arm in this window
     # Held, on the servo's own samples: the command's getFeedbackPosCartesian follows Servo/status (10 Hz
     # at rest), and a busy machine delays it further (a fresh-clone CI run beside two busy loops read a
@@ -203,7 +142,7 @@ def test_pause_stops_on_the_line_and_resume_reaches_the_target(arm: Arm):
     arm.idle()
     assert not arm.common(OP.getState)["state"] & StateBit.PAUSED
     assert line_deviation(arm.points(arm.recorded()), p0, p0 + d) < TOL_PATH
-    assert np.linalg.norm(arm.pose()[:, 3] - (p0 + d)) < TOL_PATH
+    assert np.linalg.norm(arm.pose()[:3, 3] - (p0 + d)) < TOL_PATH
 
 
 def test_stop_discards_the_queue(arm: Arm):
@@ -257,7 +196,7 @@ def test_refusals_change_nothing(arm: Arm):
     assert r.id == ReturnCode.VALUE_ERR, r
     r = arm.middle(OP.moveCircularCartesianRel, {"carPointR": rel(dx=0.05), "carPointT": rel(dx=0.1)})
     assert r.id == ReturnCode.VALUE_ERR and "collinear" in r.comment.lower(), r
-    p = arm.pose()[:, 3]
+    p = arm.pose()[:3, 3]
     box = [LimitValue(p[i] + 0.02, p[i] - 0.02) for i in range(3)]
     arm.ok(arm.middle(OP.setSoftLimitCartesian, dict(zip(("xLimit", "yLimit", "zLimit"), box))))
     r = arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(dz=-0.05)})  # leaves the box
@@ -289,7 +228,7 @@ def test_offsets_change_cartesian_feedback(arm: Arm):
     n = arm.model.axis_num
     q = arm.joints()[:n]
     flange = arm.kin.fk(q).homogeneous
-    assert np.abs(arm.pose() - flange[:3]).max() < 1e-6
+    assert np.abs(arm.pose()[:3] - flange[:3]).max() < 1e-6
     c = np.cos(0.3)
     rot = np.array([[c, -np.sin(0.3), 0], [np.sin(0.3), c, 0], [0, 0, 1]])
     B = np.eye(4)
@@ -298,14 +237,14 @@ def test_offsets_change_cartesian_feedback(arm: Arm):
     C[:3, 3] = (0.0, 0.0, 0.15)
     arm.ok(arm.middle(OP.setBaseOffset, {"offset": B[:3]}))
     assert np.abs(arm.middle(OP.getBaseOffset)["offset"] - B[:3]).max() < 1e-12
-    assert np.abs(arm.pose() - (np.linalg.inv(B) @ flange)[:3]).max() < 1e-6
+    assert np.abs(arm.pose()[:3] - (np.linalg.inv(B) @ flange)[:3]).max() < 1e-6
     arm.ok(arm.middle(OP.setControlPointOffset, {"offset": C[:3]}))
-    assert np.abs(arm.pose() - (np.linalg.inv(B) @ flange @ C)[:3]).max() < 1e-6
+    assert np.abs(arm.pose()[:3] - (np.linalg.inv(B) @ flange @ C)[:3]).max() < 1e-6
     # A LIN in the robot frame moves the control point straight in that frame.
-    p0 = arm.pose()[:, 3]
+    p0 = arm.pose()[:3, 3]
     arm.ok(arm.middle(OP.moveLinearCartesianRel, {"carPoint": rel(dz=-0.05)}))
     arm.idle()
-    assert np.linalg.norm(arm.pose()[:, 3] - (p0 + [0, 0, -0.05])) < TOL_PATH
+    assert np.linalg.norm(arm.pose()[:3, 3] - (p0 + [0, 0, -0.05])) < TOL_PATH
 
 
 def test_home(arm: Arm):

@@ -47,10 +47,10 @@ from jara_arm.schema.types import CarPosWithElbow, LimitValue
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
+from .harness import ServoTime
 from .support import (
     Client,
     Proc,
-    ServoTime,
     car,
     endpoint,
     free_port,

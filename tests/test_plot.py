@@ -35,7 +35,8 @@ from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.types import LimitValue
 
-from .support import LaunchedArm, Proc, wait_recording
+from .harness import LiveArm
+from .support import Proc, wait_recording
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 CYCLE = 1e-3  # [s]
@@ -276,7 +277,7 @@ def test_bad_file_names_exit_2(output: str, path: str | None, message: str, tmp_
 
 # -- live: the command as a process against `jara-arm up` -------------------------------------------------
 
-class Arm(LaunchedArm):
+class Arm(LiveArm):
     """The live system's client (conftest.py ``live``)."""
 
     def ptp(self, delta: float = 0.3) -> None:

@@ -28,7 +28,8 @@ from jara_arm.schema.types import CarPosWithElbow, LimitValue, hg_matrix
 from jara_arm.services.command.cartesian import CartesianFeedback
 from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
 
-from .support import ServoTime, client_session, launched, motion_settings
+from .harness import ServoTime, launched
+from .support import client_session, motion_settings
 
 POSE_TOL = 1e-6  # [m] and [rad]: a PTP's end against its Cartesian target
 

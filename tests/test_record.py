@@ -55,7 +55,8 @@ from jara_arm.services.runtime.rpc import InterfaceServer, ok
 from jara_arm.services.runtime.wire import label
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import Client, Proc, client_session, endpoint, free_port, launched, wait_recording, wait_until
+from .harness import launched
+from .support import Client, Proc, client_session, endpoint, free_port, wait_recording, wait_until
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 T0 = 1_800_000_000_000_000_000  # [ns] a Unix time for hand-made recordings

@@ -33,7 +33,8 @@ from jara_arm.schema.roles import Role
 from jara_arm.schema.types import Time, TimedJointPos
 from jara_arm.services.runtime.cell import Cell
 
-from .support import LAUNCHER, Proc, ServoTime, free_port, wait_until
+from .harness import ServoTime, launched, listening
+from .support import LAUNCHER, Proc, free_port, wait_until
 
 ROBOT = "iiwa"
 KEYS = ArmKeys("arm0")
@@ -52,7 +53,7 @@ class SecureCell:
         # A certificate of another cell, with a name and role this cell also has.
         self.foreign = init_cell(foreign)
         issue(self.foreign, "alice", Role.OPERATOR)
-        self.endpoint = f"tls/127.0.0.1:{free_port()}"
+        self.endpoint = ""  # where the system listens, once launched
         self.proc: Proc | None = None
 
     def config(self, name: str, cell: Cell | None = None) -> zenoh.Config:
@@ -79,13 +80,9 @@ class SecureCell:
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SecureCell]:
     c = SecureCell(tmp_path_factory.mktemp("cell"), tmp_path_factory.mktemp("foreign"))
-    c.proc = Proc([*LAUNCHER, "up", "--robot", ROBOT, "--secure", str(c.cell.root), "--listen", c.endpoint])
-    try:
-        c.proc.wait_for_line("ready", timeout=60)
+    with launched("--robot", ROBOT, "--secure", str(c.cell.root), scheme="tls") as (proc, _):
+        c.proc, c.endpoint = proc, listening(proc)
         yield c
-    finally:
-        code = c.proc.stop(signal.SIGINT, timeout=20)
-        assert code == 0, f"launcher exit {code}:\n{c.proc.output[-4000:]}"
 
 
 @pytest.fixture

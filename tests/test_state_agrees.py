@@ -11,7 +11,8 @@ from jara_arm.schema.codes import AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import OP
 
-from .support import client_session, launched, wait_until
+from .harness import launched
+from .support import client_session, wait_until
 
 ROUNDS = 50
 

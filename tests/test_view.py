@@ -70,7 +70,8 @@ from jara_arm.services.planner.planning import PREVIEW_POINTS, MotionPlanner
 from jara_arm.services.runtime.wire import Publication
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import LaunchedArm, free_port, motion_settings
+from .harness import LiveArm
+from .support import free_port, motion_settings
 
 # -- the scene, from the URDFs ---------------------------------------------------------------------
 
@@ -474,16 +475,13 @@ def test_the_page_shows_a_fake_arm_and_its_moves(lone_session: zenoh.Session, tm
 # -- live: the page of `jara-arm up` in a browser --------------------------------------------------
 
 
-Arm = LaunchedArm  # conftest's ``live`` client
-
-
 @pytest.fixture(scope="module", params=["iiwa"])
 def robot_name(request: pytest.FixtureRequest) -> str:
     return str(request.param)
 
 
 @contextlib.contextmanager
-def _view_process(arm: Arm, port: int) -> Iterator[subprocess.Popen[str]]:
+def _view_process(arm: LiveArm, port: int) -> Iterator[subprocess.Popen[str]]:
     """``jara-arm view`` as a process, a client of the live system, until its URL line."""
     proc = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", "view", "--connect", arm.endpoint,
                              "--port", str(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -498,7 +496,7 @@ def _view_process(arm: Arm, port: int) -> Iterator[subprocess.Popen[str]]:
 
 
 @pytest.mark.timeout(300)
-def test_live_the_page_shows_the_arm_and_a_ptp_move(arm: Arm, tmp_path: Path) -> None:
+def test_live_the_page_shows_the_arm_and_a_ptp_move(arm: LiveArm, tmp_path: Path) -> None:
     chromium()
     with browser(tmp_path) as b:
         with _view_process_empty(port=free_port()) as empty_url:  # the same page with no arm on its network
