@@ -9,11 +9,14 @@ a time). Its client of the system is the module's ``Arm`` class if it has one (a
 ``harness.LiveArm``, often a ``RecordingArm``, with what only that module needs),
 else a ``LiveArm``.
 
+``alarm_system``: the system of the alarm tests (``alarm_system.py``: an obstacle in
+the simulated world, every service alive), once per module that uses it. A system
+shared by the modules for the whole session would run beside every later module.
+
 The rigs of ``test_servo.py`` (a servo alone), ``test_planner.py`` (a servo and a
 planner, the test a peer of both) and ``test_command.py`` (a router of the test's
 own, a servo, a planner and two command services, one of them with fake peers)
-start different services and stay with their modules; ``test_alarms.py``'s
-system stays there too (``bench/alarm_latency.py`` imports it).
+start different services and stay with their modules.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import pytest
 
 from jara_arm.schema.keys import Service
 
+from .alarm_system import AlarmArm, report_latencies, started_system
 from .harness import LiveArm, launched
 from .support import client_session
 
@@ -45,3 +49,11 @@ def arm(live: LiveArm) -> LiveArm:
     """``live``, back at the module's starting point (``reset()``)."""
     live.reset()
     return live
+
+
+@pytest.fixture(scope="module")
+def alarm_system() -> Iterator[AlarmArm]:
+    """The alarm tests' system and client of it; the detection latencies measured, printed at the end."""
+    with started_system() as arm:
+        yield arm
+    report_latencies()

@@ -36,7 +36,7 @@ def _start(model: RobotModel) -> np.ndarray:
 
 
 def _box_ahead() -> Obstacle:
-    """A box on the circle the ready flange follows when J1 turns, 0.5 rad ahead (as test_alarms' box)."""
+    """A box on the circle the ready flange follows when J1 turns, 0.5 rad ahead (as alarm_system.py's box)."""
     x, y, z = Kinematics(IIWA, seed_table=0).fk(READY).translation
     r, a = float(np.hypot(x, y)), float(np.arctan2(y, x)) + 0.5
     return Obstacle((r * np.cos(a), r * np.sin(a), z), (0.05, 0.05, 0.15))

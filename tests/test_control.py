@@ -1,5 +1,5 @@
 """The servo's control law without I/O (``services/servo/control.py``): every safety rule,
-deterministic and fast. The live-process tests (``test_servo.py``, ``test_alarms.py``)
+deterministic and fast. The live-process tests (``test_servo.py``, ``test_alarms_motion.py``)
 check the same rules end to end."""
 
 from __future__ import annotations

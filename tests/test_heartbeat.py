@@ -1,7 +1,7 @@
 """The services' heartbeat (``services/runtime/heartbeat.py``) on a real Zenoh session.
 
 The alarm monitor's side (silence and stuck loops raise the hung FAULTs) is
-provoked for real in ``test_alarms.py``; here: what a heartbeat says.
+provoked for real in ``test_alarms_services.py``; here: what a heartbeat says.
 """
 
 from __future__ import annotations
