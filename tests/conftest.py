@@ -13,10 +13,10 @@ else a ``LiveArm``.
 the simulated world, every service alive), once per module that uses it. A system
 shared by the modules for the whole session would run beside every later module.
 
-The rigs of ``test_servo.py`` (a servo alone), ``test_planner.py`` (a servo and a
+The rigs of ``test_servo.py`` (a servo alone), ``planner_rig.py`` (a servo and a
 planner, the test a peer of both) and ``test_command.py`` (a router of the test's
 own, a servo, a planner and two command services, one of them with fake peers)
-start different services and stay with their modules.
+start different services and stay with the modules that use them.
 """
 
 from __future__ import annotations

@@ -46,6 +46,19 @@ def pose(p: Any, R: np.ndarray | None = None) -> np.ndarray:
     return T
 
 
+def rot_z(a: float) -> np.ndarray:
+    """The rotation by ``a`` [rad] about z."""
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance [m] of points (N, 3) to the segment a-b."""
+    d = b - a
+    u = np.clip((p - a) @ d / (d @ d), 0.0, 1.0)
+    return np.linalg.norm(p - (a + u[:, None] * d), axis=1)
+
+
 def car(T: np.ndarray, elbow: float = 0.0) -> dict:
     """A ``CarPosWithElbow`` argument in wire form: pose ``T`` [m], ``elbow`` [rad]."""
     return w.CAR_POS_WITH_ELBOW.encode(CarPosWithElbow(T[:3].copy(), elbow, 0))

@@ -29,7 +29,7 @@ from jara_arm.services.planner.trajectory import PlannedMotion
 
 from .support import car, motion_settings
 from .local_servo import LocalServo
-from .test_planner import Rig, start_rig
+from .planner_rig import PlannerRig, start_rig
 
 pytestmark = pytest.mark.timeout(120)
 IIWA = robot("iiwa")
@@ -276,7 +276,7 @@ def test_a_stop_during_the_head_discards_it_and_the_motion_is_planned_again(plan
 
 
 @pytest.fixture(scope="module")
-def boxed_rig() -> Iterator[Rig]:
+def boxed_rig() -> Iterator[PlannerRig]:
     """A servo and a planner process with a box across the middle of the LIN (+y from the ready pose)."""
     free = MotionPlanner(IIWA)
     a = free.kin.control_point(Q0).translation
@@ -284,20 +284,20 @@ def boxed_rig() -> Iterator[Rig]:
     yield from start_rig("iiwa", ("--obstacle", box), ("--obstacle", box))
 
 
-def test_live_the_first_command_goes_out_before_the_reply(boxed_rig: Rig):
+def test_live_the_first_command_goes_out_before_the_reply(boxed_rig: PlannerRig):
     """A LIN from rest clear of the box (-y): its first commands arrive before its reply; it arrives, straight."""
     rig = boxed_rig
     rig.reset()
-    a = rig.tcp(rig.pos())
+    a = rig.fk(rig.joints())
     b = a.copy()
     b[1, 3] -= 0.15
     t0 = time.time()
-    reply = rig.ok(OP.moveLinearCartesianAbs, {"carPoint": car(b)})
+    reply = rig.plan_ok(OP.moveLinearCartesianAbs, {"carPoint": car(b)})
     t_reply = time.time()
     rig.wait_idle()
     rec = rig.drain()
     assert len(rec.cmd) and rec.cmd_t[0] < t_reply, (rec.cmd_t[0] - t0, t_reply - t0)
-    reached = rig.tcp(rig.pos())
+    reached = rig.fk(rig.joints())
     assert np.abs(reached[:3, 3] - b[:3, 3]).max() < 1e-4, reached
     d = b[:3, 3] - a[:3, 3]
     rel = rig.points(rec.cmd) - a[:3, 3]
@@ -306,12 +306,12 @@ def test_live_the_first_command_goes_out_before_the_reply(boxed_rig: Rig):
     assert reply.duration > 0.5
 
 
-def test_live_a_box_mid_path_refuses_the_lin_and_it_stops_within_the_head(boxed_rig: Rig):
+def test_live_a_box_mid_path_refuses_the_lin_and_it_stops_within_the_head(boxed_rig: PlannerRig):
     rig = boxed_rig
     rig.reset()
-    q0 = rig.pos()
-    p0 = rig.tcp(q0)[:3, 3]
-    b = rig.tcp(q0)
+    q0 = rig.joints()
+    p0 = rig.fk(q0)[:3, 3]
+    b = rig.fk(q0)
     b[1, 3] += LIN_Y
     reply = rig.plan(OP.moveLinearCartesianAbs, {"carPoint": car(b)})
     assert reply.id == ReturnCode.VALUE_ERR and "obstacle 1" in reply.comment, reply
@@ -325,7 +325,7 @@ def test_live_a_box_mid_path_refuses_the_lin_and_it_stops_within_the_head(boxed_
         assert moved < REACH, moved
         np.testing.assert_allclose(rec.cmd[-1], rec.cmd[-2], atol=1e-6)  # the last command at rest
     assert not any(st.alarm for st in rec.status)
-    assert np.linalg.norm(rig.tcp(rig.pos())[:3, 3] - p0) < REACH
+    assert np.linalg.norm(rig.fk(rig.joints())[:3, 3] - p0) < REACH
 
 
 @pytest.mark.parametrize("late", [False, True], ids=["in-time", "late"])
