@@ -14,9 +14,9 @@ the simulated world, every service alive), once per module that uses it. A syste
 shared by the modules for the whole session would run beside every later module.
 
 The rigs of ``test_servo.py`` (a servo alone), ``planner_rig.py`` (a servo and a
-planner, the test a peer of both) and ``test_command.py`` (a router of the test's
-own, a servo, a planner and two command services, one of them with fake peers)
-start different services and stay with the modules that use them.
+planner, the test a peer of both) and ``command_rig.py`` (a router of the test's
+own, with service processes as its clients) start some of the services only; they
+stay with the modules that use them.
 """
 
 from __future__ import annotations

@@ -8,9 +8,9 @@ newest status, and the process log that explains a failure. ``RecordingArm`` add
 feedback sample.
 
 The parts, for the rigs that need more: ``Recorder`` (every sample of a joint stream), ``StatusLog``
-(every servo status), ``Newest`` (the newest message of a key), ``ServoTime`` (the servo's own clock)
-and ``PosCommands`` (a low-level client's position commands). conftest.py's ``live`` and ``arm``
-fixtures give a module the system of one robot with its ``Arm``.
+(every servo status), ``Newest`` (the newest message of a key), ``ServoTime`` (the servo's own clock),
+``PosCommands`` (a low-level client's position commands) and ``Ticker`` (what a fake peer publishes on its
+own). conftest.py's ``live`` and ``arm`` fixtures give a module the system of one robot with its ``Arm``.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import contextlib
 import functools
 import re
 import signal
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, Generic, TypeVar
@@ -286,6 +287,28 @@ class PosCommands:
 
     def close(self) -> None:
         self._pub.undeclare()
+
+
+class Ticker:
+    """``tick()`` every ``period`` [s] on a daemon thread until ``close()``: what a fake peer publishes on its
+    own."""
+
+    def __init__(self, period: float, tick: Callable[[], None]) -> None:
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(period, tick), daemon=True)
+        self._thread.start()
+
+    def _run(self, period: float, tick: Callable[[], None]) -> None:
+        while not self._stop.wait(period):
+            tick()
+
+    @property
+    def closed(self) -> bool:
+        return self._stop.is_set()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
 
 
 # ---------------------------------------------------------------------------- the arm

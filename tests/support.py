@@ -151,11 +151,12 @@ class Proc:
 
 
 def service_argv(service: Service, port: int, arm: str = "arm0", robot: str = "iiwa",
-                 *extra: str) -> list[str]:
-    """A service listening on its own loopback port, as a peer, multicast off."""
+                 *extra: str, client: bool = False) -> list[str]:
+    """A service on loopback, multicast off: a peer listening on ``port``, or (``client``) a client of the
+    router on ``port`` (the launcher's topology)."""
     module = service.value.replace("-", "_")
-    return [sys.executable, "-m", f"jara_arm.services.{module}", "--arm", arm, "--robot", robot,
-            "--listen", endpoint(port), *extra]
+    where = ["--mode", "client", "--connect", endpoint(port)] if client else ["--listen", endpoint(port)]
+    return [sys.executable, "-m", f"jara_arm.services.{module}", "--arm", arm, "--robot", robot, *where, *extra]
 
 
 def wait_alive(session: zenoh.Session, arm: str, services: Sequence[Service],

@@ -1,0 +1,111 @@
+"""The command service's queue bookkeeping in-process, no process: ``StateTracker`` takes the planner's
+newest message by its number, publishes the state only when it changes, and reads what arrived before
+it says the servo is silent."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+
+from jara_arm.robots import robot
+from jara_arm.schema import messages
+from jara_arm.schema.codes import StateBit
+from jara_arm.schema.planner import PlannerProgress
+from jara_arm.schema.types import Time
+
+from .support import wait_until
+
+N = robot("iiwa").axis_num
+
+
+def progress(queued=(), paused=False, seq=1, started=100.0) -> PlannerProgress:
+    return PlannerProgress(Time.now(), queued[0] if queued else 0, tuple(queued), 0, 0, paused, bool(queued),
+                           Time.from_seconds(started), seq)
+
+
+def test_the_newest_planner_message_wins_by_its_number():
+    from jara_arm.services.command.state import StateTracker
+
+    published: list[tuple[int, int]] = []
+    tracker = StateTracker(3, publish=lambda view: published.append((view.bits, view.queue_length)))
+    tracker.on_progress(progress((1, 2, 3), seq=5))
+    assert tracker.view().full and tracker.view().queue_length == 3
+    tracker.on_progress(progress((1,), seq=4))  # older: on its way before the last
+    tracker.on_progress(progress((1,), seq=5))  # the same number: nothing new
+    assert tracker.view().queue_length == 3
+    tracker.on_progress(progress((2, 3), paused=True, seq=6))
+    assert (tracker.view().queue_length, tracker.view().paused, tracker.view().full) == (2, True, False)
+    tracker.on_progress(None)  # the planner did not answer: nothing learnt
+    assert tracker.view().queue_length == 2
+    tracker.on_progress(progress((7,), seq=1, started=200.0))  # a restarted planner
+    assert tracker.view().queue_length == 1 and not tracker.view().paused
+    tracker.on_planner_gone()
+    assert tracker.view().queue_length == 0
+    tracker.on_progress(progress((7,), seq=2, started=200.0))  # still on its way from the gone one
+    assert tracker.view().queue_length == 0
+    tracker.on_progress(progress((), seq=1, started=300.0))
+    assert published == [(StateBit.MOVING | StateBit.BUFFER_FULL, 3), (StateBit.MOVING | StateBit.PAUSED, 2),
+                         (StateBit.MOVING, 1), (0, 0)]
+
+
+def test_the_state_is_published_only_when_it_changes():
+    from jara_arm.services.command.state import StateTracker
+
+    published: list[int] = []
+    tracker = StateTracker(4, publish=lambda view: published.append(view.bits))
+    z = (0.0,) * N
+    status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
+    for _ in range(100):
+        tracker.on_status(status)
+        tracker.on_progress(progress(seq=1))
+        tracker.tick()
+    assert published == [StateBit.SERVO_ON]
+    tracker.on_status(dataclasses.replace(status, moving=True))
+    assert published == [StateBit.SERVO_ON, StateBit.SERVO_ON | StateBit.MOVING]
+
+
+def test_a_stale_view_first_takes_in_what_arrived():
+    """A command service held up without a CPU has statuses waiting: the view reads them before it says
+    "no status" (``StateTracker.catch_up``); with nothing waiting it still says so."""
+    from jara_arm.services.command.state import StateTracker
+
+    tracker = StateTracker(4, publish=lambda view: None, stale_after=0.05)
+    z = (0.0,) * N
+    status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
+    tracker.on_status(status)
+    assert tracker.view().servo_heard and tracker.view().servo_on
+    waiting: list[messages.ServoStatus] = []
+    tracker.catch_up = lambda: [tracker.on_status(s) for s in waiting] and waiting.clear()
+    wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")  # none waiting: stale
+    waiting.append(status)
+    view = tracker.view()  # stale, but one waits: taken in first
+    assert view.servo_heard and view.servo_on and not waiting
+
+
+def test_a_motion_request_listens_for_a_status_before_it_says_there_is_none():
+    """A command service whose receiving threads were held up has no status yet: the view of a motion
+    request waits up to ``listen`` for one (a status arriving meanwhile counts); a servo that stays
+    silent is still "not heard", after ``listen``, not before."""
+    from jara_arm.services.command.state import StateTracker
+
+    tracker = StateTracker(4, publish=lambda view: None, stale_after=0.05)
+    z = (0.0,) * N
+    status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
+    drains: list[float] = []
+    tracker.catch_up = lambda: drains.append(time.monotonic())
+    t0 = time.monotonic()
+    view = tracker.view(listen=0.2)  # nothing ever came
+    assert not view.servo_heard and time.monotonic() - t0 >= 0.2
+    assert len(drains) >= 2  # what arrived meanwhile was looked for, not only once
+    late = threading.Timer(0.1, tracker.on_status, (status,))
+    late.start()
+    try:
+        view = tracker.view(listen=5.0)
+    finally:
+        late.join()
+    assert view.servo_heard and view.servo_on
+    wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")
+    drains.clear()
+    assert not tracker.view().servo_heard  # a plain view (getState) looks once and does not wait
+    assert len(drains) == 1
