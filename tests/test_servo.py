@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import msgpack
@@ -13,15 +14,15 @@ import pytest
 import zenoh
 
 from jara_arm.robots import robot
-from jara_arm.schema import codec, messages
-from jara_arm.schema import wire_types as w
+from jara_arm.schema import messages
+from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
-from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import COMMON, OP
-from jara_arm.schema.types import Time, TimedJointPos
 from jara_arm.services.servo.control import OVERSPEED_MARGIN
 
-from .support import Client, Proc, client_session, free_port, service_argv, wait_alive, wait_until
+from .harness import PosCommands, Processes, RecordingArm, StatusLog
+from .support import Proc, client_session, free_port, service_argv, wait_alive, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 DT = 1e-3
@@ -34,102 +35,47 @@ AMAX = np.array(IIWA.max_accel)
 IGNORED_WINDOW = 100
 
 
-class Rig:
-    """A servo process, a client session, the command publisher and feedback subscribers."""
+class Rig(RecordingArm):
+    """A servo process alone, its feedback and every status recorded, and a low-level client's position
+    commands to it. No command service: the Common interface is the servo's own."""
 
-    def __init__(self, proc: Proc, session: zenoh.Session, robot_name: str) -> None:
-        self.proc, self.session = proc, session
-        self.model = robot(robot_name)
-        self.keys = ArmKeys("arm0")
-        self.client = Client(session)
-        self.pub = session.declare_publisher(self.keys.pos_cmd)
-        self.fb = session.declare_subscriber(self.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 17))
-        self.status = session.declare_subscriber(self.keys.servo_status, zenoh.handlers.FifoChannel(1 << 14))
+    def __init__(self, session: zenoh.Session, robot_name: str, proc: Proc) -> None:
+        super().__init__(session, robot_name, proc=proc)
+        self.commands = PosCommands(session, self.keys, self.model.cmd_cycle)
+        self.statuses = StatusLog(session, self.keys, explain=self.log_tail)
 
-    def call(self, name: str, args=None):
-        return self.client.servo(name, args)
-
-    def state(self) -> int:
-        return self.call(OP.getState)["state"]
-
-    def pos(self) -> np.ndarray:
-        return np.array(self.call(OP.getFeedbackPosJoint)["pos"])
-
-    def send(self, q) -> None:
-        self.pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time.now(), tuple(map(float, q)))))
-
-    def stream(self, points: np.ndarray, lead: int = 100) -> None:
-        """Publish ``points`` keeping ``lead`` commands ahead of the servo, then one per cycle."""
-        t0 = time.monotonic()
-        for k, q in enumerate(points):
-            self.send(q)
-            if k >= lead:
-                delay = t0 + (k - lead) * DT - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-
-    def drain_feedback(self) -> list[np.ndarray]:
-        return [pos for _t, pos in self.drain_timed_feedback()]
-
-    def drain_timed_feedback(self) -> list[tuple[float, np.ndarray]]:
-        """Feedback as (tm [s], pos); samples may be missing (newest value wins)."""
-        out = []
-        while (s := self.fb.try_recv()) is not None:
-            msg = codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes())
-            out.append((msg.tm.to_seconds(), np.array(msg.pos)))
-        return out
-
-    def drain_status(self) -> list[messages.ServoStatus]:
-        out = []
-        while (s := self.status.try_recv()) is not None:
-            out.append(codec.decode_message(messages.SERVO_STATUS, s.payload.to_bytes()))
-        return out
-
-    def newest_status(self, timeout: float = 2.0) -> messages.ServoStatus:
-        """The newest status, waiting for one (at rest the servo sends one every 100 ms)."""
-        return wait_until(lambda: self.drain_status() or None, timeout, what="a servo status")[-1]
-
-    def status_where(self, predicate, what: str, timeout: float = 5.0) -> messages.ServoStatus:
-        """The first status (those already queued included) for which ``predicate`` holds,
-        waiting for it; the statuses before it, and those drained with it, are gone."""
-        return wait_until(lambda: next((st for st in self.drain_status() if predicate(st)), None),
-                          timeout, 0.005, what)
+    def common(self, name: str, args: dict | None = None) -> Reply:
+        return self.servo(name, args)
 
     def took(self, received: int, what: str) -> None:
         """Until the servo has taken ``received`` position commands off the wire since it started
         (its status counts them, the ones it drops too), then run ``IGNORED_WINDOW`` more cycles."""
-        st = self.status_where(lambda s: s.received >= received, f"the servo to take {what}")
+        st = self.statuses.first(lambda s: s.received >= received, f"the servo to take {what}")
         end = st.tm.to_seconds() + IGNORED_WINDOW * DT
-        self.status_where(lambda s: s.tm.to_seconds() >= end, f"{IGNORED_WINDOW} servo cycles after {what}")
-
-    def wait_rest(self, timeout: float = 10.0) -> None:
-        wait_until(lambda: not self.state() & StateBit.MOVING, timeout, what="the arm at rest")
+        self.statuses.first(lambda s: s.tm.to_seconds() >= end, f"{IGNORED_WINDOW} servo cycles after {what}")
 
     def reset(self) -> None:
-        """Servo off, at rest, alarms cleared, default soft limits, servo on, queues drained."""
-        self.call(OP.servoOFF)
+        """Servo off, at rest, alarms cleared, default soft limits, servo on, recordings emptied."""
+        self.servo(OP.servoOFF)
         self.wait_rest()
-        assert self.call(OP.clearAlarms).id == ReturnCode.OK
-        assert self.call(OP.setSoftLimitJoint, {"softLimit": self.model.hard_limits}).id == ReturnCode.OK
-        assert self.call(OP.servoON).id == ReturnCode.OK
+        assert self.servo(OP.clearAlarms).id == ReturnCode.OK
+        assert self.servo(OP.setSoftLimitJoint, {"softLimit": self.model.hard_limits}).id == ReturnCode.OK
+        assert self.servo(OP.servoON).id == ReturnCode.OK
         on = time.time()
         # A status of a cycle after the servoON (a cycle never runs before its deadline, its tm):
-        # everything published before it has arrived, and is drained here.
-        self.status_where(lambda st: st.tm.to_seconds() > on and st.servoOn, "a status with the servo on")
-        self.drain_feedback()
-        self.drain_status()
+        # everything published before it has arrived, and is emptied here.
+        self.statuses.first(lambda st: st.tm.to_seconds() > on and st.servoOn, "a status with the servo on")
+        self.record()
+        self.statuses.drain()
 
 
-def start_rig(robot_name: str):
+def start_rig(robot_name: str) -> Iterator[Rig]:
     port = free_port()
-    proc = Proc(service_argv(Service.SERVO, port, robot=robot_name))
-    try:
+    with Processes() as procs:
+        proc = procs.start(service_argv(Service.SERVO, port, robot=robot_name))
         with client_session(port) as session:
             wait_alive(session, "arm0", [Service.SERVO])
-            yield Rig(proc, session, robot_name)
-    finally:
-        assert proc.stop() == 0, proc.output
-        assert "Traceback" not in proc.output, proc.output
+            yield Rig(session, robot_name, proc)
 
 
 @pytest.fixture(scope="module")
@@ -143,9 +89,9 @@ def rig(iiwa_rig: Rig) -> Rig:
     return iiwa_rig
 
 
-def j1_of(samples: list[tuple[float, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+def j1_of(tm: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(tm [s], J1 [rad]) of the feedback, for differences over the real sample spacing."""
-    return np.array([t for t, _ in samples]), np.array([q[0] for _, q in samples])
+    return tm, q[:, 0]
 
 
 def velocity_and_acceleration(tm: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -168,22 +114,22 @@ def min_jerk(q0: np.ndarray, q1: np.ndarray, duration: float) -> np.ndarray:
 
 
 def test_manip_info_and_limits(rig: Rig):
-    info = rig.call(OP.getManipInfo)["mInfo"]
+    info = rig.servo(OP.getManipInfo)["mInfo"]
     assert (info.manufactur, info.axisNum, info.cmdCycle, info.isGripper) == ("KUKA", 7, 1, False)
-    assert rig.call(OP.getSoftLimitJoint)["softLimit"] == IIWA.hard_limits
+    assert rig.servo(OP.getSoftLimitJoint)["softLimit"] == IIWA.hard_limits
     assert rig.state() == StateBit.SERVO_ON
-    assert rig.call(OP.getActiveAlarm)["alarms"] == ()
-    assert len(rig.pos()) == 7
+    assert rig.servo(OP.getActiveAlarm)["alarms"] == ()
+    assert len(rig.joints()) == 7
 
 
 def test_streamed_trajectory_is_followed(rig: Rig):
-    q0 = rig.pos()
+    q0 = rig.joints()
     q1 = q0 + np.array([0.4, -0.2, 0.3, 0.3, -0.2, 0.2, 0.5])
     path = min_jerk(q0, q1, 1.2)
-    rig.stream(path)
+    rig.commands.stream(path)
     assert rig.state() & StateBit.MOVING
     rig.wait_rest()
-    fb = np.array(rig.drain_feedback())
+    fb = rig.recorded()
     assert np.abs(fb[-1] - q1).max() < 2e-4, fb[-1] - q1
     # Every feedback sample lies near the commanded path (lag of a few cycles at most).
     dist = np.min(np.linalg.norm(fb[:, None, :] - path[None, ::5, :], axis=2), axis=1)
@@ -191,19 +137,19 @@ def test_streamed_trajectory_is_followed(rig: Rig):
 
 
 def test_fifo_consumes_every_command_in_order_one_per_cycle(rig: Rig):
-    q0 = rig.pos()
+    q0 = rig.joints()
     path = min_jerk(q0, q0 + np.array([0.2, 0, 0, 0, 0, 0, 0]), 0.4)  # strictly rising J1
     n = len(path)
-    before = rig.newest_status().consumed
+    before = rig.statuses.newest().consumed
     t0 = time.monotonic()
     for q in path:  # all at once: the FIFO must hold them
-        rig.send(q)
+        rig.commands.send(q)
     rig.wait_rest()
     elapsed = time.monotonic() - t0
     status: list[messages.ServoStatus] = []
 
     def emptied() -> bool:
-        status.extend(rig.drain_status())
+        status.extend(rig.statuses.drain())
         return bool(status) and status[-1].fifoDepth == 0 and status[-1].consumed - before >= n
 
     wait_until(emptied, 5.0, what=f"a status with the FIFO empty and {n} consumed")
@@ -212,114 +158,114 @@ def test_fifo_consumes_every_command_in_order_one_per_cycle(rig: Rig):
     assert np.all(np.diff(targets) >= -1e-12), "targets went backwards: commands out of order"
     assert abs(targets[-1] - path[-1, 0]) < 1e-12
     assert elapsed >= n * DT * 0.9  # one per cycle, not all at once
-    assert abs(rig.pos()[0] - path[-1, 0]) < 2e-4
+    assert abs(rig.joints()[0] - path[-1, 0]) < 2e-4
 
 
 def test_underrun_stops_smoothly(rig: Rig):
-    q0 = rig.pos()
+    q0 = rig.joints()
     v = 0.6 * VMAX[0]  # [rad/s] cruise of J1
     t_acc = 0.3
     t = np.arange(0, 0.8, DT)
     x = np.where(t < t_acc, 0.5 * v / t_acc * t**2, 0.5 * v * t_acc + v * (t - t_acc))
     path = np.repeat(q0[None, :], len(t), axis=0)
     path[:, 0] += x
-    rig.stream(path)  # ends at full speed: the FIFO runs dry while moving
+    rig.commands.stream(path)  # ends at full speed: the FIFO runs dry while moving
     rig.wait_rest()
-    tm, fb = j1_of(rig.drain_timed_feedback())
+    tm, fb = j1_of(*rig.recorded_timed())
     vel, acc = velocity_and_acceleration(tm, fb)
     assert np.nanmax(np.abs(vel)) <= v * 1.05
     braking = acc[int(np.nanargmax(vel)):]  # from full speed to rest
     assert np.nanmax(np.abs(braking)) < AMAX[0] * 1.5, np.nanmax(np.abs(braking))  # within the limits
     overshoot = fb[-1] - path[-1, 0]
     assert 0 < overshoot < v**2 / (2 * AMAX[0]) * 2.0, overshoot  # stopped along the way, no jump back
-    assert rig.newest_status().underruns >= 1
+    assert rig.statuses.newest().underruns >= 1
     assert rig.state() == StateBit.SERVO_ON  # at rest, still on, no alarm
 
 
 def test_emergency_stop(rig: Rig):
-    q0 = rig.pos()
+    q0 = rig.joints()
     path = min_jerk(q0, q0 + np.array([0.8, 0, 0, 0, 0, 0, 0]), 1.5)
-    start = rig.newest_status().consumed
+    start = rig.statuses.newest().consumed
     for q in path[:700]:
-        rig.send(q)
-    rig.status_where(lambda st: st.consumed >= start + 400, "the arm 400 cycles into the move")
+        rig.commands.send(q)
+    rig.statuses.first(lambda st: st.consumed >= start + 400, "the arm 400 cycles into the move")
     t0 = time.monotonic()
     rig.session.put(rig.keys.estop, b"")
     wait_until(lambda: not rig.state() & StateBit.SERVO_ON, 1.0, 0.001, "servo off after e-stop")
     assert time.monotonic() - t0 < 0.1
-    alarms = rig.call(OP.getActiveAlarm)["alarms"]
+    alarms = rig.servo(OP.getActiveAlarm)["alarms"]
     assert [(a.code, a.type) for a in alarms] == [(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT)]
     assert rig.state() & StateBit.ALARM
     rig.wait_rest()
-    tm, fb = j1_of(rig.drain_timed_feedback())
+    tm, fb = j1_of(*rig.recorded_timed())
     _, acc = velocity_and_acceleration(tm, fb)
     assert np.nanmax(np.abs(acc)) < AMAX[0] * 1.5  # a controlled stop: no jump
     assert fb[-1] < path[-1, 0] - 0.1  # stopped short of the target
-    held = rig.pos()
-    received = rig.newest_status().received
+    held = rig.joints()
+    received = rig.statuses.newest().received
     for q in path[700:]:
-        rig.send(q)  # ignored: servo off
+        rig.commands.send(q)  # ignored: servo off
     rig.took(received + len(path[700:]), "the commands sent while off")
-    assert np.abs(rig.pos() - held).max() < 1e-4
-    refused = rig.call(OP.servoON)
+    assert np.abs(rig.joints() - held).max() < 1e-4
+    refused = rig.servo(OP.servoON)
     assert refused.id == ReturnCode.STATUS_ERR and "clear" in refused.comment
-    assert rig.call(OP.clearAlarms).id == ReturnCode.OK
-    assert rig.call(OP.servoON).id == ReturnCode.OK
+    assert rig.servo(OP.clearAlarms).id == ReturnCode.OK
+    assert rig.servo(OP.servoON).id == ReturnCode.OK
     assert rig.state() == StateBit.SERVO_ON
 
 
 def test_servo_off_holds_and_ignores_commands(rig: Rig):
-    assert rig.call(OP.servoOFF).id == ReturnCode.OK
+    assert rig.servo(OP.servoOFF).id == ReturnCode.OK
     assert rig.state() == 0
-    held = rig.pos()
-    received = rig.newest_status().received
+    held = rig.joints()
+    received = rig.statuses.newest().received
     path = min_jerk(held, held + 0.3, 0.3)
-    rig.stream(path)
+    rig.commands.stream(path)
     rig.took(received + len(path), "the commands streamed while off")
-    assert np.abs(rig.pos() - held).max() < 1e-4
+    assert np.abs(rig.joints() - held).max() < 1e-4
     assert rig.state() == 0
 
 
 def test_joint_soft_limit_is_the_last_line_of_defence(rig: Rig):
-    q0 = rig.pos()
+    q0 = rig.joints()
     limits = list(IIWA.hard_limits)
     limits[0] = type(limits[0])(upper=q0[0] + 0.1, lower=q0[0] - 0.1)
-    assert rig.call(OP.setSoftLimitJoint, {"softLimit": limits}).id == ReturnCode.OK
-    assert rig.call(OP.getSoftLimitJoint)["softLimit"][0] == limits[0]
+    assert rig.servo(OP.setSoftLimitJoint, {"softLimit": limits}).id == ReturnCode.OK
+    assert rig.servo(OP.getSoftLimitJoint)["softLimit"][0] == limits[0]
     path = min_jerk(q0, q0 + np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)
-    rig.stream(path)
+    rig.commands.stream(path)
     rig.wait_rest()
-    alarms = rig.call(OP.getActiveAlarm)["alarms"]
+    alarms = rig.servo(OP.getActiveAlarm)["alarms"]
     assert [(a.code, a.type) for a in alarms] == [(AlarmCode.SOFT_LIMIT_JOINT, AlarmType.WARNING)]
     assert "J1" in alarms[0].description
     assert rig.state() == StateBit.SERVO_ON | StateBit.ALARM  # a WARNING keeps the servo on
-    fb = np.array(rig.drain_feedback())[:, 0]
+    fb = rig.recorded()[:, 0]
     assert fb.max() <= limits[0].upper + 5e-3  # target clamped at the limit: physical overshoot only
     assert abs(fb[-1] - limits[0].upper) < 1e-3  # and it settles on the limit
-    assert rig.call(OP.clearAlarms).id == ReturnCode.OK  # the arm is inside: the cause has gone
+    assert rig.servo(OP.clearAlarms).id == ReturnCode.OK  # the arm is inside: the cause has gone
     assert rig.state() == StateBit.SERVO_ON
 
 
 def test_jump_is_refused_as_overspeed(rig: Rig):
-    q0 = rig.pos()
+    q0 = rig.joints()
     jump = q0.copy()
     jump[2] += VMAX[2] * DT * OVERSPEED_MARGIN * 3
-    rig.send(jump)
+    rig.commands.send(jump)
     wait_until(lambda: rig.state() & StateBit.ALARM, 2.0, what="overspeed alarm")
-    alarms = rig.call(OP.getActiveAlarm)["alarms"]
+    alarms = rig.servo(OP.getActiveAlarm)["alarms"]
     assert [(a.code, a.type) for a in alarms] == [(AlarmCode.OVERSPEED, AlarmType.FAULT)]
     assert "J3" in alarms[0].description
     assert not rig.state() & StateBit.SERVO_ON
-    assert np.abs(rig.pos() - q0).max() < 1e-4  # not applied
+    assert np.abs(rig.joints() - q0).max() < 1e-4  # not applied
 
 
 def test_set_soft_limit_refused_while_moving_and_checked(rig: Rig):
-    q0 = rig.pos()
+    q0 = rig.joints()
     hard = IIWA.hard_limits
     for q in min_jerk(q0, q0 + np.array([0.5, 0, 0, 0, 0, 0, 0]), 1.0):
-        rig.send(q)
+        rig.commands.send(q)
     wait_until(lambda: rig.state() & StateBit.MOVING, 2.0, 0.005, "the arm moving")
-    busy = rig.call(OP.setSoftLimitJoint, {"softLimit": hard})
+    busy = rig.servo(OP.setSoftLimitJoint, {"softLimit": hard})
     assert busy.id == ReturnCode.STATUS_ERR and "moving" in busy.comment
     rig.wait_rest()
     LV = type(hard[0])
@@ -329,9 +275,9 @@ def test_set_soft_limit_refused_while_moving_and_checked(rig: Rig):
         (hard[:3] + (LV(hard[3].upper + 0.1, 0.0),) + hard[4:], "softLimit[3]", "hard limits"),
     ]
     for limits, field, words in cases:
-        r = rig.call(OP.setSoftLimitJoint, {"softLimit": limits})
+        r = rig.servo(OP.setSoftLimitJoint, {"softLimit": limits})
         assert r.id == ReturnCode.VALUE_ERR and r.comment.startswith(field) and words in r.comment, r
-    assert rig.call(OP.getSoftLimitJoint)["softLimit"] == hard  # nothing changed
+    assert rig.servo(OP.getSoftLimitJoint)["softLimit"] == hard  # nothing changed
 
 
 @pytest.mark.parametrize("name", list(COMMON))
@@ -357,14 +303,14 @@ def test_unknown_operation_and_json(rig: Rig):
 
 
 def test_malformed_position_commands_are_dropped(rig: Rig):
-    held = rig.pos()
-    received = rig.newest_status().received
-    rig.pub.put(b"\xc1")
-    rig.pub.put(msgpack.packb({"tm": {"sec": 0, "nsec": 0}, "pos": [0.0] * 3}))  # wrong length
-    rig.pub.put(msgpack.packb({"pos": list(held)}))  # no tm
+    held = rig.joints()
+    received = rig.statuses.newest().received
+    rig.commands.put(b"\xc1")
+    rig.commands.put(msgpack.packb({"tm": {"sec": 0, "nsec": 0}, "pos": [0.0] * 3}))  # wrong length
+    rig.commands.put(msgpack.packb({"pos": list(held)}))  # no tm
     rig.took(received + 3, "the three malformed commands")
     assert rig.state() == StateBit.SERVO_ON
-    assert np.abs(rig.pos() - held).max() < 1e-4
+    assert np.abs(rig.joints() - held).max() < 1e-4
 
 
 def test_plain_client_drives_the_servo(iiwa_rig: Rig):
@@ -400,13 +346,13 @@ def panda_rig():
 
 def test_panda_gripper_is_one_axis(panda_rig: Rig):
     panda_rig.reset()
-    info = panda_rig.call(OP.getManipInfo)["mInfo"]
+    info = panda_rig.servo(OP.getManipInfo)["mInfo"]
     assert info.axisNum == 7 and info.isGripper
-    q0 = panda_rig.pos()
+    q0 = panda_rig.joints()
     assert len(q0) == 8 and abs(q0[7] - 0.04) < 1e-3  # starts open
     q1 = q0.copy()
     q1[7] = 0.01
-    panda_rig.stream(min_jerk(q0, q1, 0.6))
+    panda_rig.commands.stream(min_jerk(q0, q1, 0.6))
     panda_rig.wait_rest()
-    assert abs(panda_rig.pos()[7] - 0.01) < 1e-3
-    assert len(panda_rig.call(OP.getSoftLimitJoint)["softLimit"]) == 7  # gripper excluded
+    assert abs(panda_rig.joints()[7] - 0.01) < 1e-3
+    assert len(panda_rig.servo(OP.getSoftLimitJoint)["softLimit"]) == 7  # gripper excluded
