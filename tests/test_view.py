@@ -70,7 +70,7 @@ from jara_arm.services.planner.planning import PREVIEW_POINTS, MotionPlanner
 from jara_arm.services.runtime.wire import Publication
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .harness import LiveArm
+from .harness import LiveArm, Ticker
 from .support import free_port, motion_settings
 
 # -- the scene, from the URDFs ---------------------------------------------------------------------
@@ -169,28 +169,23 @@ class FakeArm:
                                + ([self.model.gripper_limits.upper] if self.model.gripper_limits else []))
         self.world = ServoWorld(robot_name, (0.0, 0.0, 0.0), ())
         self.settings: MotionSettings | None = None  # none published until set
-        self._stop = threading.Event()
         self._pubs = [Publication(session, keys.servo_world), Publication(session, keys.command_settings),
                       Publication(session, keys.state)]
         self._fb = session.declare_publisher(keys.servo_status)
         self._token = session.liveliness().declare_token(keys.alive(Service.SERVO))
         self.sent = 0
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        # ~1 kHz, faster than the servo's 100 Hz (less on a busy machine: the test counts)
+        self._ticker = Ticker(0.001, self._tick)
 
-    def _run(self) -> None:
+    def _tick(self) -> None:
         world, settings, state = self._pubs
-        k = 0
-        while not self._stop.is_set():
-            if k % 200 == 0:
-                world.put_message(SERVO_WORLD, self.world)
-                if self.settings is not None:
-                    settings.put_message(MOTION_SETTINGS, self.settings)
-                state.put_message(STATE_MESSAGE, StateMessage(int(StateBit.SERVO_ON)))
-            self._fb.put(codec.encode_message(*_feedback(self.joints)))
-            self.sent += 1
-            k += 1
-            time.sleep(0.001)  # ~1 kHz, faster than the servo's 100 Hz (less on a busy machine: the test counts)
+        if self.sent % 200 == 0:
+            world.put_message(SERVO_WORLD, self.world)
+            if self.settings is not None:
+                settings.put_message(MOTION_SETTINGS, self.settings)
+            state.put_message(STATE_MESSAGE, StateMessage(int(StateBit.SERVO_ON)))
+        self._fb.put(codec.encode_message(*_feedback(self.joints)))
+        self.sent += 1
 
     def publish_path(self, motion: int, running: int) -> None:
         """A ``Planner/path`` of ``motion`` (a line from the origin), then a progress with ``running``."""
@@ -203,10 +198,9 @@ class FakeArm:
                                                                    0, 0, False, bool(running), now, motion))
 
     def close(self) -> None:
-        if self._stop.is_set():
+        if self._ticker.closed:
             return
-        self._stop.set()
-        self._thread.join(2.0)
+        self._ticker.close()
         self._token.undeclare()
         self._fb.undeclare()
         for pub in self._pubs:
