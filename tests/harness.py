@@ -396,9 +396,9 @@ class LiveArm:
 
     def pose(self) -> np.ndarray:
         """The control point's pose (4 x 4) as ``getFeedbackPosCartesian`` gives it."""
-        T = np.eye(4)
-        T[:3] = np.asarray(self.cartesian().carPos)
-        return T
+        pose = np.eye(4)
+        pose[:3] = np.asarray(self.cartesian().carPos)
+        return pose
 
     def fk(self, q: Any = None) -> np.ndarray:
         """Flange pose (4 x 4, arm frame, identity offsets) at joints ``q`` (default: the joint feedback now)."""
