@@ -93,6 +93,7 @@ class System:
         self.client = Client(session)
         self.kin = Kinematics(IIWA, seed_table=0)
         self.events: list[tuple[float, messages.AlarmEvent]] = []
+        self.held: messages.ServoStatus | None = None  # the status target() read: where a stream started
         # A callback that only stamps and stores: the receipt time is what is measured.
         self._event_sub = session.declare_subscriber(
             self.keys.alarm, lambda s: self.events.append(
@@ -226,7 +227,8 @@ class System:
         """
         now = time.time()
         fresh = self.statuses_until(lambda s: s.tm.to_seconds() >= now, "a servo status stamped now", 2.0)
-        return np.array([s for s in fresh if s.tm.to_seconds() >= now][-1].target)
+        self.held = [s for s in fresh if s.tm.to_seconds() >= now][-1]
+        return np.array(self.held.target)
 
     def consumed(self) -> int:
         """How many position commands the servo has taken from its FIFO so far."""
@@ -385,6 +387,8 @@ def check_no_jump(arm: System, since: float = 0.0, allowed: np.ndarray = ACC_ALL
             f"feedback acceleration {peak.round(2)} beyond {allowed.round(2)}, at t = {at - since:.4f} s after "
             f"the first command sent; the feedback around it (t [s] after it, joints):\n"
             + "\n".join(f"{tm[i] - since:.4f} {np.round(q[i, :3], 6)}" for i in near)
+            + (f"\nbefore it, the servo held J1-J3 at {np.round(arm.held.target[:3], 7)}, measured "
+               f"{np.round(arm.held.pos[:3], 7)}" if arm.held is not None else "")
             + f"\n{arm.log_tail(lines=60)}")
     assert np.abs(vel[-20:, :N]).max() < 1e-2, "not at rest at the end of the recording"
     return q[-1]

@@ -70,7 +70,7 @@ from jara_arm.services.planner.planning import PREVIEW_POINTS, MotionPlanner
 from jara_arm.services.runtime.wire import Publication
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import LaunchedArm, free_port, motion_settings
+from .support import LaunchedArm, free_port, motion_settings, wait_until
 
 # -- the scene, from the URDFs ---------------------------------------------------------------------
 
@@ -357,6 +357,11 @@ class Browser:
     def open(self, url: str) -> None:
         self._call("Page.navigate", url=url)
 
+    def text(self) -> str:
+        """The page's visible text (hidden elements left out), e.g. the panel's rendered markdown."""
+        result = self._call("Runtime.evaluate", expression="document.body.innerText", returnByValue=True)
+        return str(result["result"].get("value", ""))
+
     def shot(self, out: Path) -> np.ndarray:
         """The page now, an (H, W, 3) uint8 array (also written to ``out``)."""
         out.write_bytes(base64.b64decode(self._call("Page.captureScreenshot", format="png")["data"]))
@@ -509,6 +514,11 @@ def test_live_the_page_shows_the_arm_and_a_ptp_move(arm: Arm, tmp_path: Path) ->
             b.open(f"http://127.0.0.1:{port}/")
             shown = settled_shot(b, tmp_path / "arm.png")
             assert differ(empty, shown) > 0.02, "the page looks the same with the arm as without"
+            # The panel says what the README promises: the arm, its robot, its state bits, its alarms, its services.
+            said = ("arm0 — iiwa", "state: 0x01 SERVO_ON", "alarms: none", "services: alarm-monitor, command, "
+                    "planner, servo")
+            wait_until(lambda: all(s in b.text() for s in said), 30.0, 0.5, f"the panel to say {said}",
+                       explain=lambda: f"the page's text: {b.text()!r}")
             target = np.array(arm.model.ready_pose) + np.array([0.8, 0.3, 0.0, 0.3, 0.0, 0.4, 0.0])
             reply = arm.client.middle(OP.movePTPJointAbs, {"jointPoints": target.tolist()})
             assert reply.ok, f"{reply}\n{arm.explain()}"
