@@ -23,12 +23,15 @@
     jara-arm completion bash
 
 ``logs`` and ``alarms`` join any Zenoh network (by default as a client of
-tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM; ``call``,
-``echo``, ``state`` and ``wait`` join it the same way (``launcher/call.py``,
-``echo.py``, ``state_view.py``, ``wait.py``), and ``plot`` too unless it reads a
-recording (``plot.py``); ``view`` serves a web page with a live 3D view of the arms
-(``view.py``). ``certs`` makes a secure cell's directory, its certificate
-authority and the certificates of its identities, and lists them (``certs.py``).
+tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM
+(``launcher/tools/watch.py``); ``call``, ``echo``, ``state`` and ``wait`` join it
+the same way (``launcher/tools/call.py``, ``echo.py``, ``state_view.py``,
+``wait.py``), and ``plot`` too unless it reads a recording
+(``launcher/record/plot.py``); ``view`` serves a web page with a live 3D view of
+the arms (``launcher/view/view.py``). ``certs`` makes a secure cell's directory,
+its certificate authority and the certificates of its identities, and lists them
+(``launcher/secure/certs.py``). ``up``, ``service`` and ``router`` are in
+``launcher/up/``.
 
 A user mistake (unknown robot, bad arm id, a port already in use…) prints one
 readable message and exits with status 2.
@@ -56,26 +59,26 @@ from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
 from jara_arm.services.runtime.timing import add_health_arguments, health_from_args
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
-from . import certs
-from .call import CallError, parse_call, run_call
-from .client import ArmClient, ClientError
 from .completion import SHELLS, bash_script
-from .demo import run_demo
-from .echo import EchoKeyError, EchoSettings, echo_key, echo_keys, run_echo
-from .record import RecordSettings, lower_priority, run_record
-from .recording import RecordingError, RecordingWriter
-from .recording import info as recording_info
-from .replay import ReplaySettings, plan, run_replay
-from .gateway import GATEWAY_ZID
-from .router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
-from .services import NAMES, SERVICES, spec
-from .state_view import run_state
-from .supervisor import StopSignals
-from .up import ArmSpec, UpSettings, run_up
-from .view import DEFAULT_HOST, DEFAULT_PORT, DEFAULT_RATE, ViewError, ViewSettings, run_view
-from .wait import CONDITION_HELP, Condition, run_wait
-from .watch import LOG_LEVELS as RECORD_LEVELS
-from .watch import run_alarms, run_logs
+from .record.record import RecordSettings, lower_priority, run_record
+from .record.recording import RecordingError, RecordingWriter
+from .record.recording import info as recording_info
+from .record.replay import ReplaySettings, plan, run_replay
+from .secure import certs
+from .stop_signals import StopSignals
+from .tools.call import CallError, parse_call, run_call
+from .tools.client import ArmClient, ClientError
+from .tools.demo import run_demo
+from .tools.echo import EchoKeyError, EchoSettings, echo_key, echo_keys, run_echo
+from .tools.state_view import run_state
+from .tools.wait import CONDITION_HELP, Condition, run_wait
+from .tools.watch import LOG_LEVELS as RECORD_LEVELS
+from .tools.watch import run_alarms, run_logs
+from .up.gateway import GATEWAY_ZID
+from .up.router import DEFAULT_LISTEN, RouterError, RouterSettings, run_router, zerror_text
+from .up.services import NAMES, SERVICES, spec
+from .up.up import ArmSpec, UpSettings, run_up
+from .view.view import DEFAULT_HOST, DEFAULT_PORT, DEFAULT_RATE, ViewError, ViewSettings, run_view
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 USAGE_ERROR = 2
@@ -581,7 +584,7 @@ def _plot(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """``plot``: the options checked first (exit 2, nothing read or written), then the samples from the
     recording or from a session on the network, then the figures."""
     # Here, not at the top: matplotlib and Pinocchio take half a second to import, which only plot pays.
-    from .plot import PlotDataError, PlotInputError, PlotSettings, collect_live, read_recording, render
+    from .record.plot import PlotDataError, PlotInputError, PlotSettings, collect_live, read_recording, render
 
     try:
         settings = PlotSettings.check(arm=args.arm, recording=args.recording, seconds=args.seconds,

@@ -14,10 +14,10 @@ from collections.abc import Mapping
 
 from jara_arm.schema.keys import KEY_TABLE, PREFIX, Service
 
-from .call import operation_names
-from .echo import echo_keys
-from .services import NAMES
-from .wait import Condition
+from .tools.call import operation_names
+from .tools.echo import echo_keys
+from .tools.wait import Condition
+from .up.services import NAMES
 
 SHELLS = ("bash",)
 

@@ -24,7 +24,7 @@ import zenoh
 
 from jara_arm import robots
 from jara_arm.launcher import cli
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.launcher.completion import bash_script
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec

@@ -25,11 +25,11 @@ import pytest
 import zenoh
 
 from jara_arm.launcher import cli
-from jara_arm.launcher.arm_state import format_state, read_state
-from jara_arm.launcher.call import CallError, close_matches, parameter_list, parse_call, reply_json
-from jara_arm.launcher.echo import EchoKeyError, EchoSettings, Thinner, decode_payload, echo_key, run_echo
-from jara_arm.launcher.state_view import Beat, Snapshot, render, rpy
-from jara_arm.launcher.wait import Condition, state_meets
+from jara_arm.launcher.tools.arm_state import format_state, read_state
+from jara_arm.launcher.tools.call import CallError, close_matches, parameter_list, parse_call, reply_json
+from jara_arm.launcher.tools.echo import EchoKeyError, EchoSettings, Thinner, decode_payload, echo_key, run_echo
+from jara_arm.launcher.tools.state_view import Beat, Snapshot, render, rpy
+from jara_arm.launcher.tools.wait import Condition, state_meets
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Reply

@@ -40,8 +40,8 @@ from websockets.sync.client import connect
 
 from jara_arm.kinematics import Kinematics
 from jara_arm.launcher import cli
-from jara_arm.launcher.scene import RobotGeometry, ShapeKind, box_edges, limit_box
-from jara_arm.launcher.view import View, ViewError, ViewSettings, check_port
+from jara_arm.launcher.view.scene import RobotGeometry, ShapeKind, box_edges, limit_box
+from jara_arm.launcher.view.view import View, ViewError, ViewSettings, check_port
 from jara_arm.robots import ROBOTS, robot
 from jara_arm.schema import codec
 from jara_arm.schema.codes import StateBit

@@ -54,7 +54,7 @@ from jara_arm.schema.planner import MOTION_SETTINGS, PLANNED_PATH, PLANNER_PROGR
 from jara_arm.schema.types import Alarm
 from jara_arm.schema.wire_types import StructType
 
-from .arm_state import format_state, read_state
+from ..tools.arm_state import format_state, read_state
 from .scene import ArmScene, RobotGeometry
 
 log = logging.getLogger(__name__)

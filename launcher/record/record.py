@@ -5,7 +5,7 @@ every publication, the 1 kHz streams and the call traces included (the servers
 of the Common, Middle, Servo/Common and Monitor/Common interfaces publish each
 call they answer while a subscriber like this one listens: ``trace/...``).
 The subscriber's callback only stamps the sample with its arrival time and
-queues it; this command's loop transcodes and writes (``launcher/recording.py``)
+queues it; this command's loop transcodes and writes (``launcher/record/recording.py``)
 and shows the size, message count and rate on stderr every second.
 
 The recorder runs at a lower CPU priority (nice +10): on a busy machine it

@@ -1,6 +1,6 @@
 """``jara-arm up``: every service of every arm, on a private cell bus, behind a client gateway, on this host.
 
-Topology (launcher/gateway.py): the launcher process is the **cell bus**, a Zenoh router on a
+Topology (launcher/up/gateway.py): the launcher process is the **cell bus**, a Zenoh router on a
 private endpoint (a Unix socket only this user can open) that every service process joins as a
 client. A **client gateway**, a router process of its own,
 listens on the given endpoints and joins the bus: clients reach every service of every arm
@@ -25,11 +25,12 @@ from jara_arm.services.runtime.cell import SERVICE_IDENTITY
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.timing import SAME_HOST, Health, health_argv
 
+from ..stop_signals import StopSignals
+from ..tools.watch import LogPrinter
 from .gateway import private_bus
 from .router import Presence, RouterError, RouterSettings, local_endpoint, open_router, say
 from .services import SERVICES, ServiceSpec
-from .supervisor import Child, StopSignals, Supervisor
-from .watch import LogPrinter
+from .supervisor import Child, Supervisor
 
 log = logging.getLogger("jara_arm.launcher")
 

@@ -19,9 +19,9 @@ from jara_arm.schema.keys import any_arm_alive, parse_alive
 from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
 from jara_arm.services.runtime.zenoh_args import default_endpoint, zenoh_config
 
+from ..secure.refusals import RefusalLog
+from ..stop_signals import StopSignals
 from .gateway import GATEWAY_ZID, FeedbackRelay, bus_config, gateway_config
-from .refusals import RefusalLog
-from .supervisor import StopSignals
 
 log = logging.getLogger("jara_arm.launcher")
 
@@ -53,7 +53,7 @@ class RouterSettings:
     multicast: bool = False
     secure: str | None = None  #: the cell directory (``--secure``); None: an open cell
     identity: str = ROUTER_IDENTITY
-    #: a client gateway (``--gateway``): best effort to every client, never waiting on one (launcher/gateway.py)
+    #: a client gateway (``--gateway``): best effort to every client, never waiting on one (launcher/up/gateway.py)
     gateway: bool = False
     #: a router of the cell bus (``--bus``): its blocking publications reach the gateways as best effort
     bus: bool = False

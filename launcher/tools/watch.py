@@ -24,7 +24,7 @@ from jara_arm.schema.keys import (ArmKeys, Service, any_arm_alarm, any_arm_log, 
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import Alarm
 
-from .router import say
+from ..up.router import say
 
 log = logging.getLogger("jara_arm.launcher")
 
