@@ -50,13 +50,13 @@ def no_network(monkeypatch: pytest.MonkeyPatch) -> None:
     """Any attempt of the command line to join a network fails the test: bad input sends nothing."""
     def refuse(*_: Any, **__: Any) -> Any:
         raise AssertionError("the command opened a Zenoh session")
-    monkeypatch.setattr(cli.zenoh, "open", refuse)
+    monkeypatch.setattr(zenoh, "open", refuse)
 
 
 # -- parsing ---------------------------------------------------------------------------------------
 
 def test_the_tools_parse_their_arguments() -> None:
-    top = cli._Parsers().top
+    top = cli.parser()
     call = top.parse_args(["call", "--arm", "a1", "--servo", "--timeout", "3", "getState"])
     assert (call.command, call.arm, call.servo, call.timeout, call.op, call.json) == \
         ("call", "a1", True, 3.0, "getState", None)

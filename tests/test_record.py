@@ -72,7 +72,7 @@ def lone_session() -> Iterator[zenoh.Session]:
 def no_network(monkeypatch: pytest.MonkeyPatch) -> None:
     def refuse(*_: Any, **__: Any) -> Any:
         raise AssertionError("the command opened a Zenoh session")
-    monkeypatch.setattr(cli.zenoh, "open", refuse)
+    monkeypatch.setattr(zenoh, "open", refuse)
 
 
 def validate(key: str, value: dict[str, Any]) -> None:
