@@ -24,7 +24,7 @@ import zenoh
 
 from jara_arm import robots
 from jara_arm.launcher import cli
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.launcher.completion import bash_script
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
@@ -55,7 +55,7 @@ def car(T: np.ndarray, elbow: float = 0.0) -> dict:
 
 def bash_complete(words: list[str]) -> list[str]:
     """What bash offers for the last of ``words`` with jara-arm's completion script sourced."""
-    script = bash_script(cli._Parsers().commands())
+    script = bash_script(cli.command_parsers())
     line = " ".join(f"'{w}'" for w in words)
     run = subprocess.run(["bash", "-c", (f'{script}\nCOMP_WORDS=({line}); COMP_CWORD={len(words) - 1}; '
                                          '_jara_arm; printf "%s\\n" "${COMPREPLY[@]}"')],

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from jara_arm.kinematics import Kinematics
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.robots import ROBOTS, Obstacle, RobotModel, robot
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP

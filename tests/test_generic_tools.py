@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.robots import robot
 from jara_arm.schema.codes import AlarmCode, ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys

@@ -12,7 +12,7 @@ import pytest
 import zenoh
 
 from jara_arm.kinematics import Kinematics
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.robots import robot
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w

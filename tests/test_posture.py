@@ -18,7 +18,7 @@ import pytest
 
 from jara_arm.kinematics import Kinematics, as_se3
 from jara_arm.kinematics.posture import ELBOW, POSTURE_SET, SHOULDER, WRIST, Postures, describe
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.robots import RobotModel, robot
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit

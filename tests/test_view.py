@@ -40,8 +40,8 @@ from websockets.sync.client import connect
 
 from jara_arm.kinematics import Kinematics
 from jara_arm.launcher import cli
-from jara_arm.launcher.scene import RobotGeometry, ShapeKind, box_edges, limit_box
-from jara_arm.launcher.view import View, ViewError, ViewSettings, check_port
+from jara_arm.launcher.view.scene import RobotGeometry, ShapeKind, box_edges, limit_box
+from jara_arm.launcher.view.view import View, ViewError, ViewSettings, check_port
 from jara_arm.robots import ROBOTS, robot
 from jara_arm.schema import codec
 from jara_arm.schema.codes import StateBit
@@ -288,7 +288,7 @@ def test_a_port_in_use_is_a_readable_error(lone_session: zenoh.Session) -> None:
 ])
 def test_bad_view_options_exit_2(argv: list[str], message: str, monkeypatch: pytest.MonkeyPatch,
                                  capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.setattr(cli.zenoh, "open", lambda *_: pytest.fail("the command opened a Zenoh session"))
+    monkeypatch.setattr(zenoh, "open", lambda *_: pytest.fail("the command opened a Zenoh session"))
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
