@@ -33,8 +33,9 @@ from jara_arm.schema.codec import Encoding
 from jara_arm.schema.codes import StateBit
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionSettings
+from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
+from jara_arm.services.planner.request import PlanRequest
 from jara_arm.services.runtime.realtime import realtime_thread
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
@@ -278,6 +279,12 @@ def motion_settings(model: RobotModel, **changes: Any) -> MotionSettings:
         softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
         controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
     return dataclasses.replace(s, **changes)
+
+
+def plan_request(op: str, args: Mapping[str, Any], settings: MotionSettings) -> PlanRequest:
+    """The motion ``op`` with ``args`` in wire form (as ``Planner/plan`` carries them), decoded as the planner's
+    plan worker decodes it for ``MotionPlanner`` and the planning process; raises PlanRefused as it does."""
+    return PlanRequest.decode(MotionRequest(op, dict(args), settings))
 
 
 class LaunchedArm:

@@ -60,7 +60,6 @@ from jara_arm.schema.planner import (
     MOTION_SETTINGS,
     PLANNED_PATH,
     PLANNER_PROGRESS,
-    MotionRequest,
     MotionSettings,
     PlannedPath,
     PlannerProgress,
@@ -70,7 +69,7 @@ from jara_arm.services.planner.planning import PREVIEW_POINTS, MotionPlanner
 from jara_arm.services.runtime.wire import Publication
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
-from .support import LaunchedArm, free_port, motion_settings, wait_until
+from .support import LaunchedArm, free_port, motion_settings, plan_request, wait_until
 
 # -- the scene, from the URDFs ---------------------------------------------------------------------
 
@@ -135,8 +134,8 @@ def test_the_planner_previews_the_control_point_path() -> None:
     tool = np.eye(4)[:3].copy()
     tool[2, 3] = 0.1  # 10 cm along the flange's z
     start, target = np.array(model.ready_pose), np.array(model.ready_pose) + 0.3
-    motion = MotionPlanner(model).plan(MotionRequest(OP.movePTPJointAbs, {"jointPoints": target.tolist()},
-                                                     _settings(model, tool=tool)), start)
+    motion = MotionPlanner(model).plan(plan_request(OP.movePTPJointAbs, {"jointPoints": target.tolist()},
+                                                    _settings(model, tool=tool)), start)
     assert 2 <= len(motion.preview) <= PREVIEW_POINTS < len(motion.q)
     kin = Kinematics(model)
     c = pin.SE3(np.eye(3), np.array([0.0, 0.0, 0.1]))
