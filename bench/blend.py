@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _system import client, launched_system  # noqa: E402
 
 from jara_arm.kinematics import Kinematics  # noqa: E402
-from jara_arm.launcher.client import ArmClient  # noqa: E402
+from jara_arm.launcher.tools.client import ArmClient  # noqa: E402
 from jara_arm.robots import robot  # noqa: E402
 from jara_arm.schema import codec  # noqa: E402
 from jara_arm.schema import wire_types as w  # noqa: E402

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _system import client, launched_system, percentile  # noqa: E402
 from soak import ArmTally, drive  # noqa: E402
 
-from jara_arm.launcher.client import ArmClient  # noqa: E402
+from jara_arm.launcher.tools.client import ArmClient  # noqa: E402
 from jara_arm.schema import messages  # noqa: E402
 from jara_arm.schema.keys import ArmKeys  # noqa: E402
 from jara_arm.schema.operations import OP  # noqa: E402

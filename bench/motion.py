@@ -67,6 +67,7 @@ from jara_arm.kinematics import Kinematics
 from jara_arm.robots import Obstacle
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.profile import ProfileLimits
+from jara_arm.services.planner.request import PlanRequest
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -246,7 +247,7 @@ def in_process(b: Bench, q0: np.ndarray, a: np.ndarray, lin_args: dict, circ_arg
     """The LIN and the CIRC of :func:`cartesian` planned here, the LIN from a LIN ready pose -> its start."""
     planner = MotionPlanner(MODEL)
     R0 = b.kin.control_point(q0).rotation
-    plan = lambda op, args, q: planner.plan(MotionRequest(op, args, b.settings()), q)  # noqa: E731
+    plan = lambda op, args, q: planner.plan(PlanRequest.decode(MotionRequest(op, args, b.settings())), q)  # noqa: E731
     qa = plan(OP.moveLinearCartesianAbs, {"carPoint": car(a, R0)}, q0).end
     qb = plan(OP.moveLinearCartesianAbs, lin_args, qa).end
     out = []
@@ -275,7 +276,7 @@ def collision_cost() -> list[str]:
                            accelTimeCartesian=model.min_accel_time_cartesian, softLimitJoint=model.hard_limits,
                            softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
                            controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
-        plan = lambda op, args, q: planner.plan(MotionRequest(op, args, s), q)  # noqa: E731
+        plan = lambda op, args, q: planner.plan(PlanRequest.decode(MotionRequest(op, args, s)), q)  # noqa: E731
         T = planner.kin.fk(np.array(model.ready_pose))
         at = lambda d: car(T.translation + np.array(d), T.rotation)  # noqa: E731
         q_a = plan(OP.moveLinearCartesianAbs, {"carPoint": at((0.0, -0.25, 0.0))}, start).end

@@ -40,18 +40,19 @@ from jara_arm.schema.motion import TRAJECTORY, Trajectory
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
-from jara_arm.services.planner import collision, paths, planning, profile, sampling, trajectory
+from jara_arm.services.planner import cartesian, collision, paths, profile, sampling, trajectory
 from jara_arm.services.planner.planning import MotionPlanner
+from jara_arm.services.planner.request import PlanRequest
 from jara_arm.services.planner.worker import PlanningProcess
 from jara_arm.services.servo.interpolator import prepare
 
 #: (stage, owner, attribute): every call of ``owner.attribute`` counts towards the stage.
 _STAGES: tuple[tuple[str, Any, str], ...] = (
-    ("profile", planning, "move_profile"),
+    ("profile", cartesian, "move_profile"),
     ("profile", profile.PathProfile, "sample"),
     ("poses", paths.CartesianLine, "sample"),
     ("poses", paths.CartesianArc, "sample"),
-    ("poses", MotionPlanner, "_ik_targets"),
+    ("poses", cartesian, "ik_targets"),
     ("IK at knots", sampling.PathJoints, "_solve"),
     ("tangents", sampling.PathJoints, "_tangent"),
     ("spline", sampling.HermiteSpline, "__call__"),
@@ -76,7 +77,12 @@ def settings(model: RobotModel) -> MotionSettings:
                           controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
 
 
-def motions(planner: MotionPlanner) -> list[tuple[str, MotionRequest, np.ndarray]]:
+def request(op: str, args: dict, s: MotionSettings) -> PlanRequest:
+    """``op`` with ``args`` in wire form, decoded as the planner's plan worker decodes it."""
+    return PlanRequest.decode(MotionRequest(op, args, s))
+
+
+def motions(planner: MotionPlanner) -> list[tuple[str, PlanRequest, np.ndarray]]:
     """The 0.5 m LIN and the half-circle CIRC of ``bench/motion.py``, each with its start joints."""
     model = planner.model
     s = settings(model)
@@ -84,13 +90,13 @@ def motions(planner: MotionPlanner) -> list[tuple[str, MotionRequest, np.ndarray
     T = planner.kin.control_point(np.array(model.ready_pose))
     a = T.translation + [-0.1, -0.25, 0.0]
     b = a + [0.0, 0.5, 0.0]
-    q_a = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(a, T.rotation)}, s), start).end
-    lin = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(b, T.rotation)}, s)
+    q_a = planner.plan(request(OP.moveLinearCartesianAbs, {"carPoint": car(a, T.rotation)}, s), start).end
+    lin = request(OP.moveLinearCartesianAbs, {"carPoint": car(b, T.rotation)}, s)
     q_b = planner.plan(lin, q_a).end
     r = 0.15
     c = b + [0.0, -r, 0.0]
-    circ = MotionRequest(OP.moveCircularCartesianAbs, {"carPointR": car(c + [r, 0.0, 0.0], T.rotation),
-                                                      "carPointT": car(c + [0.0, -r, 0.0], T.rotation)}, s)
+    circ = request(OP.moveCircularCartesianAbs, {"carPointR": car(c + [r, 0.0, 0.0], T.rotation),
+                                                "carPointT": car(c + [0.0, -r, 0.0], T.rotation)}, s)
     return [("LIN 0.5 m", lin, q_a), ("CIRC half", circ, q_b)]
 
 
@@ -128,8 +134,8 @@ def timed_stages() -> Iterator[dict[str, float]]:
 
 
 def speed_check(planner: MotionPlanner, q: np.ndarray, s: MotionSettings) -> float:
-    """[s] the joint speed check of ``_cartesian`` on ``q`` alone."""
-    vmax = planner._vmax(s)[:planner.n]
+    """[s] the joint speed check of ``CartesianPlanner.whole`` on ``q`` alone."""
+    vmax = planner.checks.vmax(s)[:planner.n]
     t = time.perf_counter()
     over = np.abs(np.diff(q[:, :planner.n], axis=0)) / planner.dt / vmax
     float(over.max())

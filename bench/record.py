@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _system import client, launched_system  # noqa: E402
 from soak import ArmTally, drive  # noqa: E402
 
-from jara_arm.launcher.client import ArmClient  # noqa: E402
-from jara_arm.launcher.recording import info  # noqa: E402
+from jara_arm.launcher.record.recording import info  # noqa: E402
+from jara_arm.launcher.tools.client import ArmClient  # noqa: E402
 from jara_arm.schema import messages  # noqa: E402
 from jara_arm.schema.keys import ArmKeys, arm_of  # noqa: E402
 from jara_arm.services.runtime.wire import decode_sample  # noqa: E402

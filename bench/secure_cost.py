@@ -25,8 +25,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 import cpu  # noqa: E402
 from _system import launched_system  # noqa: E402
 
-from jara_arm.launcher.certs import init_cell, issue  # noqa: E402
-from jara_arm.launcher.client import ArmClient  # noqa: E402
+from jara_arm.launcher.secure.certs import init_cell, issue  # noqa: E402
+from jara_arm.launcher.tools.client import ArmClient  # noqa: E402
 from jara_arm.robots import robot  # noqa: E402
 from jara_arm.schema.operations import OP  # noqa: E402
 from jara_arm.schema.roles import Role  # noqa: E402

@@ -41,8 +41,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _system import client, launched_system  # noqa: E402
 import cpu  # noqa: E402
 
-from jara_arm.launcher.client import ArmClient, ClientError  # noqa: E402
-from jara_arm.launcher.watch import format_log  # noqa: E402
+from jara_arm.launcher.tools.client import ArmClient, ClientError  # noqa: E402
+from jara_arm.launcher.tools.watch import format_log  # noqa: E402
 from jara_arm.robots import robot  # noqa: E402
 from jara_arm.schema import codec, messages  # noqa: E402
 from jara_arm.schema.codes import ReturnCode, StateBit  # noqa: E402

@@ -1,8 +1,10 @@
 """``jara-arm completion bash``: a bash completion script for the commands, their options, operation
 names (``call``), keys (``echo``) and conditions (``wait``).
 
-Generated from the argument parsers and ``schema/``, so that it never lags
-behind them: ``source <(jara-arm completion bash)``, or save it under
+Generated from the commands (``cli.COMMANDS``): their parsers give the options,
+the actions (``certs init``...) and the choices of the first positional argument;
+a command whose first argument takes free text says what to offer (``Command.words``).
+So it never lags behind them: ``source <(jara-arm completion bash)``, or save it under
 ``/etc/bash_completion.d/``.
 """
 
@@ -12,31 +14,9 @@ import argparse
 import shlex
 from collections.abc import Mapping
 
-from jara_arm.schema.keys import KEY_TABLE, PREFIX, Service
-
-from .call import operation_names
-from .echo import echo_keys
-from .services import NAMES
-from .wait import Condition
+from .command import Command
 
 SHELLS = ("bash",)
-
-
-def echo_words() -> tuple[str, ...]:
-    """The keys offered for ``echo``: the key table's, a ``<service>`` chunk spelled out for each service
-    (a ``*`` in a completion word would meet the shell's file globbing)."""
-    words = [k for k in echo_keys() if "*" not in k]
-    for row in KEY_TABLE:
-        suffix = row.key.removeprefix(f"{PREFIX}/<arm>/")
-        if suffix.endswith("/<service>") and "/".join(suffix.split("/")[:-1]) + "/*" in echo_keys():
-            words += [f"{suffix.rsplit('/', 1)[0]}/{s.value}" for s in Service]
-    return tuple(dict.fromkeys(words))
-
-
-def first_words() -> Mapping[str, tuple[str, ...]]:
-    """The first positional argument's choices, per command."""
-    return {"service": NAMES, "call": operation_names(), "echo": echo_words(),
-            "wait": tuple(c.value for c in Condition), "completion": SHELLS}
 
 
 def _options(parser: argparse.ArgumentParser) -> tuple[list[str], list[str]]:
@@ -60,11 +40,18 @@ def _actions(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentPars
     return {}
 
 
-def bash_script(commands: Mapping[str, argparse.ArgumentParser]) -> str:
+def _first_words(command: Command, parser: argparse.ArgumentParser) -> tuple[str, ...]:
+    """What bash offers for the first positional argument: the command's words, else the argument's choices."""
+    if command.words:
+        return command.words
+    first = next((a for a in parser._actions if not a.option_strings), None)
+    return tuple(first.choices or ()) if first is not None else ()
+
+
+def bash_script(commands: Mapping[str, tuple[Command, argparse.ArgumentParser]]) -> str:
     """The completion function ``_jara_arm`` and its ``complete`` line."""
-    words = first_words()
     cases, valued_all = [], set()
-    for name, parser in commands.items():
+    for name, (command, parser) in commands.items():
         options, valued = _options(parser)
         valued_all.update(valued)
         lines = [f"        {name})", f"            opts={shlex.quote(' '.join(options))}"]
@@ -77,11 +64,11 @@ def bash_script(commands: Mapping[str, argparse.ArgumentParser]) -> str:
                 valued_all.update(action_valued)
                 lines.append(f"                {action}) opts={shlex.quote(' '.join(action_options))} ;;")
             lines.append("            esac")
-        elif name in words:
-            lines.append(f"            words={shlex.quote(' '.join(words[name]))}")
-        if name == "call":  # the servo serves the Common operations only
+        elif words := _first_words(command, parser):
+            lines.append(f"            words={shlex.quote(' '.join(words))}")
+        for option, option_words in command.option_words.items():
             lines += ['            for w in "${COMP_WORDS[@]}"; do',
-                      f"                [[ $w == --servo ]] && words={shlex.quote(' '.join(operation_names(True)))}",
+                      f"                [[ $w == {option} ]] && words={shlex.quote(' '.join(option_words))}",
                       "            done"]
         lines.append("            ;;")
         cases += lines
@@ -120,3 +107,21 @@ def bash_script(commands: Mapping[str, argparse.ArgumentParser]) -> str:
         "",
     ])
 
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("shell", choices=SHELLS)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    # Imported here: the table of the commands holds this one.
+    from .cli import command_parsers
+
+    print(bash_script(command_parsers()), end="")
+    return 0
+
+
+COMMAND = Command(
+    "completion", arguments=_arguments, run=_run,
+    help="print a shell completion script",
+    description="Print the completion script of jara-arm (commands, options, operation names, "
+    "keys): source <(jara-arm completion bash)")

@@ -79,17 +79,22 @@ def decode_args(op: Operation, value: Any) -> dict[str, Any]:
 def encode_request(op: Operation, args: Mapping[str, Any] | None = None,
                    encoding: Encoding = Encoding.MSGPACK) -> bytes:
     """A request for ``op``; ``args`` holds Python values or their wire form (maps for structs)."""
-    args = dict(args or {})
+    return dumps(encode_args(op, args or {}), encoding)
+
+
+def encode_args(op: Operation, args: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``in`` parameters of ``op`` in wire form (a map, not yet serialised): the inverse of
+    :func:`decode_args`; ``args`` holds Python values or their wire form."""
     names = [p.name for p in op.inputs]
     extra = set(args) - set(names)
     if extra:
         raise WireError(sorted(extra)[0], f"unexpected parameter of {op.name}; valid: {names}")
-    out = {}
+    out: dict[str, Any] = {}
     for p in op.inputs:
         if p.name not in args:
             raise WireError(p.name, f"missing parameter of {op.name}")
         out[p.name] = p.type.encode(args[p.name])
-    return dumps(out, encoding)
+    return out
 
 
 @dataclasses.dataclass(frozen=True)

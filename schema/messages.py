@@ -147,7 +147,7 @@ class ServoWorld:
 class FeedbackBlock:
     """``Servo/posFeedbackBlock``: the servo's ``Servo/posFeedback`` samples of the last few cycles, oldest
     first, for the client gateway, which publishes them one by one on ``Servo/posFeedback`` to its clients
-    (``launcher/gateway.py``): on the cell bus the 1 kHz stream costs one message per block, not per cycle."""
+    (``launcher/up/gateway.py``): on the cell bus the 1 kHz stream costs one message per block, not per cycle."""
 
     samples: tuple[TimedJointPos, ...] = wire(w.SeqType("TimedJointPosSeq", w.TIMED_JOINT_POS))
 

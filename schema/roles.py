@@ -135,7 +135,7 @@ def access_control(names: Mapping[str, Role]) -> dict[str, Any]:
             subjects.append({"id": role.value, "cert_common_names": holders})
             policies.append({"id": role.value, "rules": ids, "subjects": [role.value]})
         if role is Role.ROUTER:
-            # The cell bus's private Unix socket (launcher/gateway.py): no certificate travels there; its
+            # The cell bus's private Unix socket (launcher/up/gateway.py): no certificate travels there; its
             # directory's permissions let only the cell's own OS user in, and what joins is a service or a
             # gateway, which may what a router may.
             subjects.append({"id": BUS_SUBJECT, "link_protocols": ["unixsock-stream"]})

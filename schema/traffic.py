@@ -7,7 +7,7 @@ when a link is busy; its congestion control decides what a full queue does to th
 
 The rule (docs/architecture.md, "Traffic"): only what keeps an arm safe and fed may block, and it
 only ever travels between the cell's own services on the cell bus; the client gateway turns every
-publication it forwards into ``drop`` (``launcher/gateway.py``), so no client can make anything wait.
+publication it forwards into ``drop`` (``launcher/up/gateway.py``), so no client can make anything wait.
 """
 
 from __future__ import annotations

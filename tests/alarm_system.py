@@ -234,6 +234,8 @@ def check_no_jump(arm: AlarmArm, since: float = 0.0, allowed: np.ndarray = ACC_A
             f"feedback acceleration {peak.round(2)} beyond {allowed.round(2)}, at t = {at - since:.4f} s after "
             f"the first command sent; the feedback around it (t [s] after it, joints):\n"
             + "\n".join(f"{tm[i] - since:.4f} {np.round(q[i, :3], 6)}" for i in near)
+            + (f"\nbefore it, the servo held J1-J3 at {np.round(arm.held.target[:3], 7)}, measured "
+               f"{np.round(arm.held.pos[:3], 7)}" if arm.held is not None else "")
             + f"\n{arm.log_tail(lines=60)}")
     assert np.abs(vel[-20:, :N]).max() < 1e-2, "not at rest at the end of the recording"
     return q[-1]

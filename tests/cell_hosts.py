@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from jara_arm.launcher.certs import init_cell, issue
+from jara_arm.launcher.secure.certs import init_cell, issue
 from jara_arm.schema.roles import Role
 
 from .hosts import LAN, POOR, Host, Hosts, Link

@@ -331,6 +331,7 @@ class LiveArm:
         self.model: RobotModel = robot(robot_name)
         self.n = self.model.axis_num
         self.proc = proc
+        self.held: messages.ServoStatus | None = None  # the status target() read: where a stream started
 
     @functools.cached_property
     def kin(self) -> Kinematics:
@@ -415,8 +416,8 @@ class LiveArm:
         from before a servoON, which holds the arm where its brakes held it, not at the old target.
         """
         now = time.time()
-        return np.array(self.status.wait(lambda st: st.tm.to_seconds() >= now, "a servo status stamped now",
-                                         2.0).target)
+        self.held = self.status.wait(lambda st: st.tm.to_seconds() >= now, "a servo status stamped now", 2.0)
+        return np.array(self.held.target)
 
     def wait_status(self, what: str, predicate: Callable[[messages.ServoStatus], Any],
                     timeout: float = 10.0) -> messages.ServoStatus:

@@ -24,15 +24,16 @@ import numpy as np
 import zenoh
 
 from jara_arm.launcher import cli
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.launcher.completion import bash_script
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding
 from jara_arm.schema.keys import ArmKeys, Service
-from jara_arm.schema.planner import MotionSettings
+from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
+from jara_arm.services.planner.request import PlanRequest
 from jara_arm.services.runtime.realtime import realtime_thread
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
@@ -66,7 +67,7 @@ def car(T: np.ndarray, elbow: float = 0.0) -> dict:
 
 def bash_complete(words: list[str]) -> list[str]:
     """What bash offers for the last of ``words`` with jara-arm's completion script sourced."""
-    script = bash_script(cli._Parsers().commands())
+    script = bash_script(cli.command_parsers())
     line = " ".join(f"'{w}'" for w in words)
     run = subprocess.run(["bash", "-c", (f'{script}\nCOMP_WORDS=({line}); COMP_CWORD={len(words) - 1}; '
                                          '_jara_arm; printf "%s\\n" "${COMPREPLY[@]}"')],
@@ -227,6 +228,12 @@ def motion_settings(model: RobotModel, **changes: Any) -> MotionSettings:
         softLimitCartesian=(LimitValue(2.0, -2.0),) * 3, baseOffset=np.eye(4)[:3],
         controlPointOffset=np.eye(4)[:3], home=model.ready_pose)
     return dataclasses.replace(s, **changes)
+
+
+def plan_request(op: str, args: Mapping[str, Any], settings: MotionSettings) -> PlanRequest:
+    """The motion ``op`` with ``args`` in wire form (as ``Planner/plan`` carries them), decoded as the planner's
+    plan worker decodes it for ``MotionPlanner`` and the planning process; raises PlanRefused as it does."""
+    return PlanRequest.decode(MotionRequest(op, dict(args), settings))
 
 
 #: SCHED_FIFO priority of the tests' low-level streams and timed waits: below the servo's clock (40) and the cell bus (35).

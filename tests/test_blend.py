@@ -25,7 +25,7 @@ from jara_arm.schema.codec import Encoding
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.operations import EXT, MAX_BLEND_DISTANCE, OP
-from jara_arm.schema.planner import ControlAction, MotionRequest
+from jara_arm.schema.planner import ControlAction
 from jara_arm.services.command.ext import CommandExt
 from jara_arm.services.command.middle import CommandMiddle
 from jara_arm.services.command.settings import Settings
@@ -36,7 +36,7 @@ from jara_arm.services.runtime.rpc import answer
 
 from .harness import RecordingArm
 from .local_servo import LocalServo
-from .support import STREAM_PRIORITY, motion_settings, realtime_section, wait_until
+from .support import STREAM_PRIORITY, motion_settings, plan_request, realtime_section, wait_until
 from .test_middle import HOLD_WINDOW, TOL_PATH, line_deviation, rel
 
 pytestmark = pytest.mark.timeout(180)
@@ -112,7 +112,7 @@ def _lin(planner: MotionPlanner, dx: float, dy: float, start: np.ndarray, previo
          d: float) -> PlannedMotion:
     car = {"carPos": [[1.0, 0.0, 0.0, dx], [0.0, 1.0, 0.0, dy], [0.0, 0.0, 1.0, 0.0]], "elbow": 0.0,
            "structFlag": 0}
-    request = MotionRequest(OP.moveLinearCartesianRel, {"carPoint": car}, motion_settings(IIWA, blendDistance=d))
+    request = plan_request(OP.moveLinearCartesianRel, {"carPoint": car}, motion_settings(IIWA, blendDistance=d))
     return planner.plan(request, start, previous)
 
 

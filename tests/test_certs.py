@@ -1,4 +1,4 @@
-"""``jara-arm certs``: a secure cell's CA, its certificates, their Zenoh files (``launcher/certs.py``).
+"""``jara-arm certs``: a secure cell's CA, its certificates, their Zenoh files (``launcher/secure/certs.py``).
 
 Real files in ``tmp_path``, read back with ``cryptography``; and the proof that
 they work: a router of the cell (``Cell.apply``) on a loopback TLS port of its
@@ -25,7 +25,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from jara_arm.launcher import cli
-from jara_arm.launcher.certs import DEFAULT_HOSTS, CertsError, init_cell, issue, list_identities, table
+from jara_arm.launcher.secure.certs import DEFAULT_HOSTS, CertsError, init_cell, issue, list_identities, table
 from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.operations import Interface
 from jara_arm.schema.roles import Role

@@ -25,11 +25,11 @@ import pytest
 import zenoh
 
 from jara_arm.launcher import cli
-from jara_arm.launcher.arm_state import format_state, read_state
-from jara_arm.launcher.call import CallError, close_matches, parameter_list, parse_call, reply_json
-from jara_arm.launcher.echo import EchoKeyError, EchoSettings, Thinner, decode_payload, echo_key, run_echo
-from jara_arm.launcher.state_view import Beat, Snapshot, render, rpy
-from jara_arm.launcher.wait import Condition, state_meets
+from jara_arm.launcher.tools.arm_state import format_state, read_state
+from jara_arm.launcher.tools.call import CallError, close_matches, parameter_list, parse_call, reply_json
+from jara_arm.launcher.tools.echo import EchoKeyError, EchoSettings, Thinner, decode_payload, echo_key, run_echo
+from jara_arm.launcher.tools.state_view import Beat, Snapshot, render, rpy
+from jara_arm.launcher.tools.wait import Condition, state_meets
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Reply
@@ -51,13 +51,13 @@ def no_network(monkeypatch: pytest.MonkeyPatch) -> None:
     """Any attempt of the command line to join a network fails the test: bad input sends nothing."""
     def refuse(*_: Any, **__: Any) -> Any:
         raise AssertionError("the command opened a Zenoh session")
-    monkeypatch.setattr(cli.zenoh, "open", refuse)
+    monkeypatch.setattr(zenoh, "open", refuse)
 
 
 # -- parsing ---------------------------------------------------------------------------------------
 
 def test_the_tools_parse_their_arguments() -> None:
-    top = cli._Parsers().top
+    top = cli.parser()
     call = top.parse_args(["call", "--arm", "a1", "--servo", "--timeout", "3", "getState"])
     assert (call.command, call.arm, call.servo, call.timeout, call.op, call.json) == \
         ("call", "a1", True, 3.0, "getState", None)

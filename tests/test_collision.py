@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 
 from jara_arm.kinematics import Kinematics
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.robots import ROBOTS, Obstacle, RobotModel, robot
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionRequest
 from jara_arm.services.planner.collision import PathChecker
-from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
+from jara_arm.services.planner.planning import MotionPlanner
+from jara_arm.services.planner.request import PlanRefused
 
 from .harness import ServoTime, launched
-from .support import client_session, motion_settings
+from .support import client_session, motion_settings, plan_request
 
 IIWA = robot("iiwa")
 READY = np.array(IIWA.ready_pose)
@@ -43,7 +43,7 @@ def _box_ahead() -> Obstacle:
 
 
 def _ptp(planner: MotionPlanner, target: tuple[float, ...]):
-    return planner.plan(MotionRequest(OP.movePTPJointAbs, {"jointPoints": target}, motion_settings(planner.model)),
+    return planner.plan(plan_request(OP.movePTPJointAbs, {"jointPoints": target}, motion_settings(planner.model)),
                         _start(planner.model))
 
 
@@ -79,8 +79,8 @@ def test_a_lin_into_a_box_is_refused():
     planner = MotionPlanner(IIWA, obstacles=(_box_ahead(),))
     T = planner.kin.fk(READY)
     target = np.hstack([T.rotation, (T.translation + [0.0, 0.3, 0.0])[:, None]])
-    req = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": {"carPos": target.tolist(), "elbow": 0.0,
-                                                                 "structFlag": 0}}, motion_settings(IIWA))
+    req = plan_request(OP.moveLinearCartesianAbs, {"carPoint": {"carPos": target.tolist(), "elbow": 0.0,
+                                                                "structFlag": 0}}, motion_settings(IIWA))
     with pytest.raises(PlanRefused) as refused:
         planner.plan(req, _start(IIWA))
     assert refused.value.code is ReturnCode.VALUE_ERR and "obstacle 1" in refused.value.comment

@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from jara_arm.launcher import cli
-from jara_arm.launcher.services import NAMES
+from jara_arm.launcher.up.services import NAMES
 from jara_arm.robots import ROBOTS
 from jara_arm.schema.keys import check_arm
 

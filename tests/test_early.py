@@ -22,12 +22,14 @@ import pytest
 from jara_arm.robots import Obstacle, robot
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import ControlAction, MotionRequest
-from jara_arm.services.planner.planning import EARLY_OPS, MotionPlanner, PlanRefused
+from jara_arm.schema.planner import ControlAction
+from jara_arm.services.planner.early import EARLY_OPS
 from jara_arm.services.planner.handover import Handover
+from jara_arm.services.planner.planning import MotionPlanner
+from jara_arm.services.planner.request import PlanRefused, PlanRequest
 from jara_arm.services.planner.trajectory import PlannedMotion
 
-from .support import car, motion_settings
+from .support import car, motion_settings, plan_request
 from .local_servo import LocalServo
 from .planner_rig import PlannerRig, start_rig
 
@@ -45,16 +47,16 @@ def _pose(planner: MotionPlanner, q: np.ndarray, dp: tuple[float, float, float])
     return T
 
 
-def _lin(planner: MotionPlanner, q: np.ndarray, dp: tuple[float, float, float], **settings: object) -> MotionRequest:
-    return MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(_pose(planner, q, dp))},
-                         motion_settings(planner.model, **settings))
+def _lin(planner: MotionPlanner, q: np.ndarray, dp: tuple[float, float, float], **settings: object) -> PlanRequest:
+    return plan_request(OP.moveLinearCartesianAbs, {"carPoint": car(_pose(planner, q, dp))},
+                        motion_settings(planner.model, **settings))
 
 
-def _circ(planner: MotionPlanner, q: np.ndarray, r: float) -> MotionRequest:
+def _circ(planner: MotionPlanner, q: np.ndarray, r: float) -> PlanRequest:
     """A half circle of radius ``r`` [m] in the horizontal plane, from the pose at ``q``."""
-    return MotionRequest(OP.moveCircularCartesianAbs, {"carPointR": car(_pose(planner, q, (r, r, 0.0))),
-                                                       "carPointT": car(_pose(planner, q, (0.0, 2 * r, 0.0)))},
-                         motion_settings(planner.model))
+    return plan_request(OP.moveCircularCartesianAbs, {"carPointR": car(_pose(planner, q, (r, r, 0.0))),
+                                                      "carPointT": car(_pose(planner, q, (0.0, 2 * r, 0.0)))},
+                        motion_settings(planner.model))
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +102,7 @@ def test_no_head_where_the_start_cannot_tell(planner):
     """No early start for a PTP, with the early start off, for an unreachable target or one in a box:
     those refusals move nothing."""
     assert planner.head(_lin(planner, Q0, (0.0, LIN_Y, 0.0)), Q0) is not None
-    ptp = MotionRequest(OP.movePTPJointAbs, {"jointPoints": tuple(Q0 + 0.1)}, motion_settings(IIWA))
+    ptp = plan_request(OP.movePTPJointAbs, {"jointPoints": tuple(Q0 + 0.1)}, motion_settings(IIWA))
     assert OP.movePTPJointAbs not in EARLY_OPS and planner.head(ptp, Q0) is None
     off = MotionPlanner(IIWA, early_start=0.0)
     assert off.head(_lin(off, Q0, (0.0, LIN_Y, 0.0)), Q0) is None
@@ -152,7 +154,7 @@ class _Started:
     reach: float
 
 
-def _started(planner: MotionPlanner, req: MotionRequest) -> _Started:
+def _started(planner: MotionPlanner, req: PlanRequest) -> _Started:
     """A servo at rest at the start, the head of ``req`` handed over early, and the whole motion."""
     servo = LocalServo(IIWA, Q0)
     h = servo.handover()
@@ -339,8 +341,8 @@ def test_after_an_early_start_the_next_motion_still_blends(planner, late):
     np.testing.assert_array_equal(start, s.whole.end)
     previous = s.handover.last_motion()
     assert previous is not None and previous.motion == 1
-    nxt = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(_pose(planner, s.whole.end, (0.15, 0.0, 0.0)))},
-                        motion_settings(IIWA, blendDistance=0.02))
+    nxt = plan_request(OP.moveLinearCartesianAbs, {"carPoint": car(_pose(planner, s.whole.end, (0.15, 0.0, 0.0)))},
+                       motion_settings(IIWA, blendDistance=0.02))
     second = planner.plan(nxt, start, previous)
     assert second.blend is not None and second.blend.previous == 1
     assert s.handover.submit(second, epoch) is not None

@@ -23,16 +23,17 @@ from jara_arm.kinematics import FULL_MASK
 from jara_arm.robots import robot
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionRequest, MotionSettings
+from jara_arm.schema.planner import MotionSettings
 from jara_arm.schema.types import CarPosWithElbow
 from jara_arm.services.planner.elbow import elbow_speed_limit, self_motion
 from jara_arm.services.planner.paths import CartesianLine
-from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
+from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.profile import cartesian_path_speed
+from jara_arm.services.planner.request import PlanRefused
 from jara_arm.services.planner.trajectory import PlannedMotion
 
 from .harness import RecordingArm as Arm  # noqa: F401 - the ``live`` fixture's client (conftest.py)
-from .support import car, pose
+from .support import car, plan_request, pose
 from .support import motion_settings as settings
 
 pytestmark = pytest.mark.timeout(180)
@@ -58,7 +59,7 @@ def wire(p: MotionPlanner, q_arm: Any) -> np.ndarray:
 
 
 def plan(p: MotionPlanner, op: str, args: dict | None, start: np.ndarray, s: MotionSettings) -> PlannedMotion:
-    return p.plan(MotionRequest(op, args or {}, s), start)
+    return p.plan(plan_request(op, args or {}, s), start)
 
 
 def starts(p: MotionPlanner) -> dict[str, np.ndarray]:

@@ -4,7 +4,7 @@ Each test starts a bad client (``bench/bad_client.py``, plain Zenoh, a process o
 ``jara-arm up``'s client endpoint, then swings the arm back and forth between two joint poses and
 checks what a user would: every move accepted, every move arrived, and no alarm raised, neither
 while the bad client misbehaves nor after. Before the cell bus and the client gateway
-(``launcher/gateway.py``) a slow subscriber raised a false hung FAULT within 40 s.
+(``launcher/up/gateway.py``) a slow subscriber raised a false hung FAULT within 40 s.
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ import pytest
 import zenoh
 
 from jara_arm import robots
-from jara_arm.launcher.certs import init_cell, issue
-from jara_arm.launcher.client import ArmClient
-from jara_arm.launcher.gateway import FeedbackRelay
+from jara_arm.launcher.secure.certs import init_cell, issue
+from jara_arm.launcher.tools.client import ArmClient
+from jara_arm.launcher.up.gateway import FeedbackRelay
 from jara_arm.schema import messages
 from jara_arm.schema.keys import ArmKeys, Service, any_arm_alarm, any_arm_every_key
 from jara_arm.schema.operations import OP

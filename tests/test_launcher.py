@@ -15,9 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from jara_arm.launcher import cli, supervisor, up
-from jara_arm.launcher.router import RouterSettings, local_endpoint
-from jara_arm.launcher.services import NAMES
+from jara_arm.launcher import cli
+from jara_arm.launcher.up import supervisor, up
+from jara_arm.launcher.up.router import RouterSettings, local_endpoint
+from jara_arm.launcher.up.services import NAMES
 from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import LimitValue

@@ -13,10 +13,10 @@ from jara_arm.kinematics import as_se3
 from jara_arm.robots import RobotModel, robot
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionRequest
-from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
+from jara_arm.services.planner.planning import MotionPlanner
+from jara_arm.services.planner.request import PlanRefused
 
-from .support import car, motion_settings, pose, rot_z, segment_distance
+from .support import car, motion_settings, plan_request, pose, rot_z, segment_distance
 
 DT = 1e-3
 PLANNED_TOL = 1e-6  # [m] planned path (FK of the samples) vs the ideal path
@@ -37,13 +37,13 @@ def test_frames_base_offset_and_control_point_offset():
     q0 = _start(model)
     T0 = np.linalg.inv(B) @ planner.kin.control_point(q0, as_se3(C)).homogeneous  # start, robot frame
     T1 = pose(T0[:3, 3] + [0.05, 0.1, -0.05], T0[:3, :3])
-    m = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
+    m = planner.plan(plan_request(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
     pts = np.array([(np.linalg.inv(B) @ planner.kin.control_point(q, as_se3(C)).homogeneous)[:3, 3] for q in m.q])
     assert segment_distance(pts, T0[:3, 3], T1[:3, 3]).max() < PLANNED_TOL
     end = np.linalg.inv(B) @ planner.kin.control_point(m.end, as_se3(C)).homogeneous
     assert np.abs(end - T1).max() < 1e-6
     up_and_turn = {"carPoint": car(pose([0, 0, 0.05], rot_z(0.2)))}
-    rel = planner.plan(MotionRequest(OP.movePTPCartesianRel, up_and_turn, s), m.end)
+    rel = planner.plan(plan_request(OP.movePTPCartesianRel, up_and_turn, s), m.end)
     end2 = np.linalg.inv(B) @ planner.kin.control_point(rel.end, as_se3(C)).homogeneous
     assert np.abs(end2[:3, 3] - (T1[:3, 3] + [0, 0, 0.05])).max() < 1e-6  # added in the robot frame
     assert np.abs(end2[:3, :3] - rot_z(0.2) @ T1[:3, :3]).max() < 1e-6  # R_rel · R_start
@@ -55,15 +55,15 @@ def test_lin_is_slowed_down_for_the_joint_speed_limits():
     q0 = _start(model)
     T0 = planner.kin.control_point(q0).homogeneous
     args = {"carPoint": car(pose(T0[:3, 3] + [0.0, 0.2, 0.0], T0[:3, :3]))}
-    fast = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args, motion_settings(model)), q0)
+    fast = planner.plan(plan_request(OP.moveLinearCartesianAbs, args, motion_settings(model)), q0)
     vmax = np.full(7, 0.2)  # [rad/s]
-    slow = planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args,
-                                      motion_settings(model, maxSpeedJoint=tuple(vmax))), q0)
+    slow = planner.plan(plan_request(OP.moveLinearCartesianAbs, args,
+                                     motion_settings(model, maxSpeedJoint=tuple(vmax))), q0)
     assert slow.duration > fast.duration
     assert (np.abs(np.diff(slow.q, axis=0)) / DT).max(axis=0).max() <= 0.2 * (1 + 1e-9)
     with pytest.raises(PlanRefused) as refused:
-        planner.plan(MotionRequest(OP.moveLinearCartesianAbs, args,
-                                   motion_settings(model, maxSpeedJoint=(1e-4,) * 7)), q0)
+        planner.plan(plan_request(OP.moveLinearCartesianAbs, args,
+                                  motion_settings(model, maxSpeedJoint=(1e-4,) * 7)), q0)
     assert refused.value.code == ReturnCode.VALUE_ERR and "lowest speed" in refused.value.comment
 
 
@@ -91,7 +91,7 @@ def test_family_rules(name: str, op: str, code: ReturnCode):
         args = {"carPoint": car(pose([0.0, 0.05, -0.02], rot_z(0.2) @ tilt))}
     q0 = _start(model)
     try:
-        m = planner.plan(MotionRequest(op, args, motion_settings(model)), q0)
+        m = planner.plan(plan_request(op, args, motion_settings(model)), q0)
     except PlanRefused as exc:
         assert exc.code == code and code == ReturnCode.NG and "Cartesian robot cannot" in exc.comment
         return

@@ -3,7 +3,7 @@
 The tests without ``live`` in their name need no system (``pytest -k 'not live'``):
 the differencing on known trajectories, gaps, the window, the limit lines, the
 PNG's pixel size, a recording read through the reader's interface (a stand-in
-for ``launcher/recording.py``), and bad input refused (exit 2, nothing written,
+for ``launcher/record/recording.py``), and bad input refused (exit 2, nothing written,
 no session opened). The ``live`` ones run ``jara-arm plot`` as a process against
 ``jara-arm up`` (the ``live``/``arm`` fixtures of conftest.py) during a PTP, and
 from a recording of ``jara-arm record``.
@@ -26,10 +26,10 @@ import zenoh
 from matplotlib.figure import Figure
 
 from jara_arm.launcher import cli
-from jara_arm.launcher.plot import Feedback, PlotSettings, feedback_of, render
-from jara_arm.launcher.plot_figures import ACCEL, HARD, SOFT, SPEED, Size, SizeError, draw_joints, limit_lines
-from jara_arm.launcher.recording import Recorded, RecordingWriter
-from jara_arm.launcher.traces import JointLimits, TraceError, differences, traces
+from jara_arm.launcher.record.plot import Feedback, PlotSettings, feedback_of, render
+from jara_arm.launcher.record.plot_figures import ACCEL, HARD, SOFT, SPEED, Size, SizeError, draw_joints, limit_lines
+from jara_arm.launcher.record.recording import Recorded, RecordingWriter
+from jara_arm.launcher.record.traces import JointLimits, TraceError, differences, traces
 from jara_arm.robots import robot
 from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.operations import OP, Interface
@@ -205,7 +205,7 @@ def test_the_feedback_and_the_arms_replies_are_read_from_recorded_messages() -> 
 
 @pytest.fixture
 def recording_file(tmp_path: Path) -> Path:
-    """:func:`recorded_run` written by the recorder's own writer (``launcher/recording.py``)."""
+    """:func:`recorded_run` written by the recorder's own writer (``launcher/record/recording.py``)."""
     path = tmp_path / "run.mcap"
     writer = RecordingWriter(path)
     try:

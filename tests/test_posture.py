@@ -18,18 +18,18 @@ import pytest
 
 from jara_arm.kinematics import Kinematics, as_se3
 from jara_arm.kinematics.posture import ELBOW, POSTURE_SET, SHOULDER, WRIST, Postures, describe
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.robots import RobotModel, robot
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionRequest
 from jara_arm.schema.types import CarPosWithElbow, LimitValue, hg_matrix
 from jara_arm.services.command.cartesian import CartesianFeedback
-from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
+from jara_arm.services.planner.planning import MotionPlanner
+from jara_arm.services.planner.request import PlanRefused
 
 from .harness import ServoTime, launched
-from .support import client_session, motion_settings
+from .support import client_session, motion_settings, plan_request
 
 POSE_TOL = 1e-6  # [m] and [rad]: a PTP's end against its Cartesian target
 
@@ -90,7 +90,7 @@ class Setup:
     postures: Postures
 
     def plan(self, op: str, args: dict, start: np.ndarray, **changes: Any):
-        request = MotionRequest(op, args, motion_settings(self.model, **changes))
+        request = plan_request(op, args, motion_settings(self.model, **changes))
         return self.planner.plan(request, wire(self.model, start))
 
     def refused(self, op: str, args: dict, start: np.ndarray, **changes: Any) -> PlanRefused:
@@ -237,7 +237,7 @@ def test_arm6_shoulder_back_straight_ahead_is_refused():
     q = np.array([0.0, 0.2, 0.2, 0.6, 1.17, 0.4])
     args = {"carPoint": carpos(planner.kin.fk(q).homogeneous, 0.0, POSTURE_SET | SHOULDER | ELBOW)}
     with pytest.raises(PlanRefused) as exc:
-        planner.plan(MotionRequest(OP.movePTPCartesianAbs, args, motion_settings(model)), q)
+        planner.plan(plan_request(OP.movePTPCartesianAbs, args, motion_settings(model)), q)
     assert exc.value.code == ReturnCode.VALUE_ERR and "0x103 (shoulder back, elbow down" in exc.value.comment
 
 
@@ -258,17 +258,17 @@ def test_malformed_flags_and_robots_without_posture_bits():
     q = np.array(SAMPLE["iiwa"])
     for flag in (0x1, 0x108, 0x300):
         with pytest.raises(PlanRefused) as exc:
-            planner.plan(MotionRequest(OP.movePTPCartesianAbs, {"carPoint": carpos(planner.kin.fk(q).homogeneous,
-                                                                                   0.0, flag)},
-                                       motion_settings(iiwa)), q)
+            planner.plan(plan_request(OP.movePTPCartesianAbs, {"carPoint": carpos(planner.kin.fk(q).homogeneous,
+                                                                                  0.0, flag)},
+                                      motion_settings(iiwa)), q)
         assert exc.value.code == ReturnCode.VALUE_ERR and "structFlag" in exc.value.comment
     for name in ("arm5", "scara4"):
         model = robot(name)
         p = MotionPlanner(model)
         T = p.kin.fk(model.ready_pose).homogeneous
         with pytest.raises(PlanRefused) as exc:
-            p.plan(MotionRequest(OP.movePTPCartesianAbs, {"carPoint": carpos(T, 0.0, POSTURE_SET)},
-                                 motion_settings(model)), np.array(model.ready_pose))
+            p.plan(plan_request(OP.movePTPCartesianAbs, {"carPoint": carpos(T, 0.0, POSTURE_SET)},
+                                motion_settings(model)), np.array(model.ready_pose))
         assert exc.value.code == ReturnCode.VALUE_ERR and "defines no posture flags" in exc.value.comment
 
 

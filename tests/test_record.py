@@ -29,8 +29,8 @@ import zenoh
 from mcap.reader import make_reader
 
 from jara_arm.launcher import cli
-from jara_arm.launcher.record import RecordSettings, run_record
-from jara_arm.launcher.recording import (
+from jara_arm.launcher.record.record import RecordSettings, run_record
+from jara_arm.launcher.record.recording import (
     Recorded,
     RecordingError,
     RecordingWriter,
@@ -40,7 +40,7 @@ from jara_arm.launcher.recording import (
     read_messages,
     to_json,
 )
-from jara_arm.launcher.replay import ReplaySettings, replayed, run_replay
+from jara_arm.launcher.record.replay import ReplaySettings, replayed, run_replay
 from jara_arm.robots import robot
 from jara_arm.schema import codec
 from jara_arm.schema.channels import MESSAGE_TYPES, channel_schema, message_type
@@ -73,7 +73,7 @@ def lone_session() -> Iterator[zenoh.Session]:
 def no_network(monkeypatch: pytest.MonkeyPatch) -> None:
     def refuse(*_: Any, **__: Any) -> Any:
         raise AssertionError("the command opened a Zenoh session")
-    monkeypatch.setattr(cli.zenoh, "open", refuse)
+    monkeypatch.setattr(zenoh, "open", refuse)
 
 
 def validate(key: str, value: dict[str, Any]) -> None:

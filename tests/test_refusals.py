@@ -1,4 +1,4 @@
-"""The secure router's refusal log (``launcher/refusals.py``) on lines as Zenoh 1.10 writes them.
+"""The secure router's refusal log (``launcher/secure/refusals.py``) on lines as Zenoh 1.10 writes them.
 
 The lines below were taken from a router's log (colours removed, ids shortened):
 a cache computation on first use of a key (every message kind traced, none of
@@ -11,7 +11,7 @@ import logging
 
 import pytest
 
-from jara_arm.launcher.refusals import RefusalLog
+from jara_arm.launcher.secure.refusals import RefusalLog
 
 T = "2026-11-23T18:15:08.{:06d}Z TRACE  rx-0 ThreadId(08) zenoh::net::routing::interceptor::access_control: "
 SUBJECT = "975bad on Interface(lo)+CertCommonName(olga)+Transport(Tls)+975bad"
@@ -56,7 +56,7 @@ def test_a_refusal_outside_a_cache_computation_is_logged(logged: pytest.LogCaptu
 def test_repeats_are_counted_not_repeated(logged: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch) -> None:
     log = RefusalLog()
     now = [100.0]
-    monkeypatch.setattr("jara_arm.launcher.refusals.time.monotonic", lambda: now[0])
+    monkeypatch.setattr("jara_arm.launcher.secure.refusals.time.monotonic", lambda: now[0])
     log.line(CACHE_BLOCK[1].replace("T18:15:08", "T18:15:00"))  # names olga, outside any block
     for _ in range(3):
         log.line(DECISION)

@@ -83,7 +83,7 @@ def test_a_role_without_holders_is_left_out() -> None:
 
 
 def test_the_cell_bus_link_has_the_router_role() -> None:
-    """The private Unix socket of the cell bus (launcher/gateway.py) carries no certificate: a gateway's link
+    """The private Unix socket of the cell bus (launcher/up/gateway.py) carries no certificate: a gateway's link
     to it is known by its protocol, and may what a router may."""
     acl = access_control({"alice": Role.OPERATOR})
     [bus] = [s for s in acl["subjects"] if s["id"] == BUS_SUBJECT]

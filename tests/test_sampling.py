@@ -18,13 +18,13 @@ import pytest
 from jara_arm.kinematics import Kinematics, as_se3
 from jara_arm.robots import robot
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionRequest, MotionSettings
+from jara_arm.schema.planner import MotionSettings
 from jara_arm.schema.types import LimitValue
 from jara_arm.services.planner import sampling
 from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.sampling import BatchFk, HermiteSpline, batch_arm_angle, batch_log3
 
-from .support import car, motion_settings, pose
+from .support import car, motion_settings, plan_request, pose
 
 DT = 1e-3
 PLANNED_POS = 1e-6  # [m] every planned sample vs the ideal pose at its path parameter
@@ -148,10 +148,10 @@ def test_lin_half_metre_every_sample_on_the_line(iiwa: MotionPlanner, monkeypatc
     T0 = kin.control_point(q0).homogeneous
     a = T0[:3, 3] + [-0.1, -0.25, 0.0]
     s = motion_settings(model)
-    first = iiwa.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(pose(a, T0[:3, :3]))}, s), q0)
+    first = iiwa.plan(plan_request(OP.moveLinearCartesianAbs, {"carPoint": car(pose(a, T0[:3, :3]))}, s), q0)
     T1 = pose(a + [0.0, 0.5, 0.0], rot([0, 0, 1], 0.3) @ T0[:3, :3])  # 0.5 m and a turn
     Ta = kin.control_point(first.end).homogeneous
-    m = iiwa.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), first.end)
+    m = iiwa.plan(plan_request(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), first.end)
     path = made[-1]
     omega = pin.log3(Ta[:3, :3].T @ T1[:3, :3])
     worst_p, worst_r = check_samples(iiwa, m, lambda u: pose(Ta[:3, 3] + u * (T1[:3, 3] - Ta[:3, 3]),
@@ -177,8 +177,8 @@ def test_circ_half_circle_every_sample_on_the_circle(iiwa: MotionPlanner, monkey
     via, target = c + [r, 0.0, 0.0], c + [0.0, -r, 0.0]
     R1 = rot([1, 0, 0], 0.2) @ R0
     s = motion_settings(model)
-    m = iiwa.plan(MotionRequest(OP.moveCircularCartesianAbs,
-                                {"carPointR": car(pose(via, R0)), "carPointT": car(pose(target, R1))}, s), q0)
+    m = iiwa.plan(plan_request(OP.moveCircularCartesianAbs,
+                               {"carPointR": car(pose(via, R0)), "carPointT": car(pose(target, R1))}, s), q0)
     omega = pin.log3(R0.T @ R1)
 
     def ideal(u: float) -> np.ndarray:  # from +y about -z (through +x) to -y: half a circle
@@ -202,7 +202,7 @@ def test_lin_with_frames_and_tight_soft_limits(iiwa: MotionPlanner):
     q0 = np.array(model.ready_pose)
     T0 = np.linalg.inv(B) @ kin.control_point(q0, as_se3(C)).homogeneous
     T1 = pose(T0[:3, 3] + [0.1, 0.15, -0.1], rot([1, 1, 0], 0.4) @ T0[:3, :3])
-    req = MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s)
+    req = plan_request(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s)
     free = iiwa.plan(req, q0)
     omega = pin.log3(T0[:3, :3].T @ T1[:3, :3])
 
@@ -226,7 +226,7 @@ def test_slowdown_reuses_the_joint_path(iiwa: MotionPlanner, monkeypatch: pytest
     T0 = kin.control_point(q0).homogeneous
     T1 = pose(T0[:3, 3] + [0.0, 0.2, 0.0], T0[:3, :3])
     s = motion_settings(model, maxSpeedJoint=(0.2,) * 7)
-    m = iiwa.plan(MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
+    m = iiwa.plan(plan_request(OP.moveLinearCartesianAbs, {"carPoint": car(T1)}, s), q0)
     assert len(made) == 1  # one joint path for every slowdown round
     assert m.duration > 0.2 / 0.25 + model.min_accel_time_cartesian  # it was slowed down
     check_samples(iiwa, m, lambda u: pose(T0[:3, 3] + u * (T1[:3, 3] - T0[:3, 3]), T0[:3, :3]), s)
@@ -243,7 +243,7 @@ def test_other_families_every_sample_on_the_line(name: str):
     T0 = planner.kin.control_point(q0[:n]).homogeneous
     a, b = T0[:3, 3], T0[:3, 3] + [0.03, 0.08, -0.03]
     s = motion_settings(model)
-    m = planner.plan(MotionRequest(OP.moveLinearCartesianRel, {"carPoint": car(pose(b - a))}, s), q0)
+    m = planner.plan(plan_request(OP.moveLinearCartesianRel, {"carPoint": car(pose(b - a))}, s), q0)
     pts = np.array([planner.kin.control_point(q[:n]).translation for q in m.q])
     d = b - a
     u = np.clip((pts - a) @ d / (d @ d), 0.0, 1.0)

@@ -22,8 +22,8 @@ import pytest
 import zenoh
 
 from jara_arm import robots
-from jara_arm.launcher.certs import init_cell, issue
-from jara_arm.launcher.client import ArmClient, ClientError
+from jara_arm.launcher.secure.certs import init_cell, issue
+from jara_arm.launcher.tools.client import ArmClient, ClientError
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import AlarmCode, StateBit

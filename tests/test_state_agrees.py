@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import threading
 
-from jara_arm.launcher.client import ArmClient
+from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.schema.codes import AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import OP

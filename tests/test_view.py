@@ -40,8 +40,8 @@ from websockets.sync.client import connect
 
 from jara_arm.kinematics import Kinematics
 from jara_arm.launcher import cli
-from jara_arm.launcher.scene import RobotGeometry, ShapeKind, box_edges, limit_box
-from jara_arm.launcher.view import View, ViewError, ViewSettings, check_port
+from jara_arm.launcher.view.scene import RobotGeometry, ShapeKind, box_edges, limit_box
+from jara_arm.launcher.view.view import View, ViewError, ViewSettings, check_port
 from jara_arm.robots import ROBOTS, robot
 from jara_arm.schema import codec
 from jara_arm.schema.codes import StateBit
@@ -60,7 +60,6 @@ from jara_arm.schema.planner import (
     MOTION_SETTINGS,
     PLANNED_PATH,
     PLANNER_PROGRESS,
-    MotionRequest,
     MotionSettings,
     PlannedPath,
     PlannerProgress,
@@ -71,7 +70,7 @@ from jara_arm.services.runtime.wire import Publication
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 from .harness import LiveArm, Ticker
-from .support import free_port, motion_settings
+from .support import free_port, motion_settings, plan_request, wait_until
 
 # -- the scene, from the URDFs ---------------------------------------------------------------------
 
@@ -136,8 +135,8 @@ def test_the_planner_previews_the_control_point_path() -> None:
     tool = np.eye(4)[:3].copy()
     tool[2, 3] = 0.1  # 10 cm along the flange's z
     start, target = np.array(model.ready_pose), np.array(model.ready_pose) + 0.3
-    motion = MotionPlanner(model).plan(MotionRequest(OP.movePTPJointAbs, {"jointPoints": target.tolist()},
-                                                     _settings(model, tool=tool)), start)
+    motion = MotionPlanner(model).plan(plan_request(OP.movePTPJointAbs, {"jointPoints": target.tolist()},
+                                                    _settings(model, tool=tool)), start)
     assert 2 <= len(motion.preview) <= PREVIEW_POINTS < len(motion.q)
     kin = Kinematics(model)
     c = pin.SE3(np.eye(3), np.array([0.0, 0.0, 0.1]))
@@ -283,7 +282,7 @@ def test_a_port_in_use_is_a_readable_error(lone_session: zenoh.Session) -> None:
 ])
 def test_bad_view_options_exit_2(argv: list[str], message: str, monkeypatch: pytest.MonkeyPatch,
                                  capsys: pytest.CaptureFixture[str]) -> None:
-    monkeypatch.setattr(cli.zenoh, "open", lambda *_: pytest.fail("the command opened a Zenoh session"))
+    monkeypatch.setattr(zenoh, "open", lambda *_: pytest.fail("the command opened a Zenoh session"))
     assert cli.main(argv) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
@@ -351,6 +350,11 @@ class Browser:
 
     def open(self, url: str) -> None:
         self._call("Page.navigate", url=url)
+
+    def text(self) -> str:
+        """The page's visible text (hidden elements left out), e.g. the panel's rendered markdown."""
+        result = self._call("Runtime.evaluate", expression="document.body.innerText", returnByValue=True)
+        return str(result["result"].get("value", ""))
 
     def shot(self, out: Path) -> np.ndarray:
         """The page now, an (H, W, 3) uint8 array (also written to ``out``)."""
@@ -501,6 +505,11 @@ def test_live_the_page_shows_the_arm_and_a_ptp_move(arm: LiveArm, tmp_path: Path
             b.open(f"http://127.0.0.1:{port}/")
             shown = settled_shot(b, tmp_path / "arm.png")
             assert differ(empty, shown) > 0.02, "the page looks the same with the arm as without"
+            # The panel says what the README promises: the arm, its robot, its state bits, its alarms, its services.
+            said = ("arm0 — iiwa", "state: 0x01 SERVO_ON", "alarms: none", "services: alarm-monitor, command, "
+                    "planner, servo")
+            wait_until(lambda: all(s in b.text() for s in said), 30.0, 0.5, f"the panel to say {said}",
+                       explain=lambda: f"the page's text: {b.text()!r}")
             target = np.array(arm.model.ready_pose) + np.array([0.8, 0.3, 0.0, 0.3, 0.0, 0.4, 0.0])
             reply = arm.client.middle(OP.movePTPJointAbs, {"jointPoints": target.tolist()})
             assert reply.ok, f"{reply}\n{arm.explain()}"

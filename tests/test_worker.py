@@ -1,5 +1,5 @@
-"""The planning process (``services/planner/worker.py``): the motion through the pipe, then its preview. Pure:
-a child process, no services."""
+"""The planning process (``services/planner/worker.py``): the motion through the pipe, then its preview; the
+typed request it is sent (``services/planner/request.py``). Pure: a child process, no services."""
 
 from __future__ import annotations
 
@@ -9,12 +9,14 @@ import numpy as np
 import pytest
 
 from jara_arm.robots import robot
+from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.operations import OP
-from jara_arm.schema.planner import MotionRequest
-from jara_arm.services.planner.planning import MotionPlanner, PlanRefused
+from jara_arm.schema.types import CarPosWithElbow
+from jara_arm.services.planner.planning import MotionPlanner
+from jara_arm.services.planner.request import PlanRefused, PlanRequest
 from jara_arm.services.planner.worker import PlanningProcess
 
-from .support import car
+from .support import car, plan_request
 from .support import motion_settings as settings
 
 
@@ -25,12 +27,29 @@ def child():
     p.close()
 
 
-def lin(planner: MotionPlanner, dy: float) -> tuple[MotionRequest, np.ndarray]:
+def lin(planner: MotionPlanner, dy: float) -> tuple[PlanRequest, np.ndarray]:
     model = planner.model
     q0 = np.array(model.ready_pose)
     T = planner.kin.control_point(q0).homogeneous
     T[1, 3] += dy
-    return MotionRequest(OP.moveLinearCartesianAbs, {"carPoint": car(T)}, settings(model)), q0
+    return plan_request(OP.moveLinearCartesianAbs, {"carPoint": car(T)}, settings(model)), q0
+
+
+def test_the_request_is_decoded_once_into_typed_values_that_pickle():
+    """What the plan worker hands on (to the head and, pickled, to the child): the parameters as IDL values,
+    no wire form left; a non-motion operation and a malformed parameter are refused as they come off the wire."""
+    req, _ = lin(MotionPlanner(robot("iiwa")), 0.1)
+    assert isinstance(req.args["carPoint"], CarPosWithElbow)
+    back = pickle.loads(pickle.dumps(req, protocol=pickle.HIGHEST_PROTOCOL))
+    assert back.op == req.op and back.settings.spdRatioCartesian == req.settings.spdRatioCartesian
+    assert np.array_equal(back.args["carPoint"].carPos, req.args["carPoint"].carPos)
+    model = robot("iiwa")
+    with pytest.raises(PlanRefused) as refused:
+        plan_request(OP.getState, {}, settings(model))
+    assert refused.value.code == ReturnCode.NOT_IMPLEMENTED
+    with pytest.raises(PlanRefused) as refused:
+        plan_request(OP.moveLinearCartesianAbs, {"carPoint": {"carPos": [[1.0, 0.0]]}}, settings(model))
+    assert refused.value.code == ReturnCode.VALUE_ERR and refused.value.comment.startswith("carPoint")
 
 
 def test_the_child_plans_what_the_parent_would_and_the_preview_follows(child: PlanningProcess):

@@ -13,7 +13,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from jara_arm.schema.codec import Reply
+from jara_arm.schema.codec import Reply, encode_args
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import Refusal
 from jara_arm.schema.operations import MIDDLE, OP
@@ -142,8 +142,8 @@ class CommandMiddle:
             if not limits.ok:
                 raise Refusal(ReturnCode.NG, f"{name} refused: joint soft limits unavailable: "
                               f"{limits.comment}")
-            wire_args = {p.name: p.type.encode(args[p.name]) for p in op.inputs}
-            request = MotionRequest(name, wire_args, self.settings.snapshot(limits["softLimit"]))
+            # In wire form for Planner/plan (another process): the planner decodes them once (planner/request.py).
+            request = MotionRequest(name, encode_args(op, args), self.settings.snapshot(limits["softLimit"]))
             answer = core.planner.plan(request)
             core.state.on_progress(answer.progress)  # the queue as it is now, before serial is let go
             if answer.reply.ok:

@@ -9,7 +9,7 @@ one jerk-limited joint-space Ruckig trajectory from the state (q, dq, ddq) at
 the cut to the state at the rejoin, within every axis' speed, acceleration and
 jerk limit: it never stops at the corner.
 
-The planner (``planning.py``) checks the blend's control point stays within
+The planner (``corners.py``) checks the blend's control point stays within
 ``d`` of the corner, its joints within the soft limits, and the whole blend
 clear of collisions; any failure keeps the exact stop for that corner. The
 servo (``servo/interpolator.py``) runs the previous motion up to the cut, the

@@ -1,4 +1,10 @@
-"""The arm angle's rate limit on a 7-axis LIN / CIRC (DECISIONS.md "Frames": the arm angle, "elbow").
+"""The arm angle ("elbow") of a 7-axis arm in a Cartesian command: its start and target, and its rate limit on a
+LIN / CIRC (DECISIONS.md "Frames": the arm angle, "elbow").
+
+A command's ``elbow`` is the target arm angle [rad]; a relative command adds it
+to the start's. The target is taken the short way round from the start's, and
+only where the family keeps the arm angle (``families.py``) on an arm that has
+one.
 
 A LIN or CIRC moves the arm angle linearly along its path (``sampling.py``),
 so the angle is a third part of the path beside translation and rotation, and
@@ -25,8 +31,11 @@ import pinocchio as pin
 from numpy.typing import NDArray
 
 from jara_arm.kinematics import Kinematics, Mask
+from jara_arm.schema.types import CarPosWithElbow
 
-__all__ = ["elbow_speed_limit", "self_motion"]
+from .families import CartesianRule
+
+__all__ = ["elbow_speed_limit", "elbow_targets", "self_motion"]
 
 #: Residual of ``∂ψ/∂q · dq = 1`` above which the arm angle cannot turn with the control point held (the
 #: shoulder, elbow and wrist in a line, or a singular task Jacobian) [-].
@@ -60,3 +69,14 @@ def elbow_speed_limit(kin: Kinematics, q: NDArray[np.float64], tool: pin.SE3 | N
     moving = np.abs(dq) > 0.0
     joints = float(np.min(max_joint_speed[moving] / np.abs(dq[moving]))) if moving.any() else math.inf
     return min(joints, max_rotation_speed)
+
+
+def elbow_targets(kin: Kinematics, cp: CarPosWithElbow, start_arm: NDArray[np.float64], relative: bool,
+                  rule: CartesianRule) -> tuple[float | None, float | None]:
+    """(start, target) arm angle [rad] of a 7-axis arm at arm joints ``start_arm`` commanded ``cp``,
+    (None, None) when not commanded (module docstring)."""
+    if not (rule.elbow and kin.has_elbow):
+        return None, None
+    e0 = kin.elbow_angle(start_arm)
+    e1 = e0 + cp.elbow if relative else cp.elbow
+    return e0, e0 + math.remainder(e1 - e0, 2.0 * math.pi)

@@ -50,8 +50,8 @@ from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.threads import LoopThread
 from jara_arm.services.runtime.timing import SAME_HOST, STATUS_LISTEN, STOP_WAIT, WATCHER_POLL
 
-from .planning import PlanRefused
 from .profile import continue_profile
+from .request import PlanRefused
 from .trajectory import Joints, PlannedMotion
 
 log = logging.getLogger(__name__)
@@ -201,7 +201,7 @@ class Handover:
                     and not m.moving)
 
     def start_early(self, head: PlannedMotion, epoch: int) -> bool:
-        """Hand over ``head`` (``planning.Head.motion``) before its motion is planned whole; True if the
+        """Hand over ``head`` (``early.Head.motion``) before its motion is planned whole; True if the
         servo took it: :meth:`confirm_early` or :meth:`cancel_early` must follow."""
         motion_id = self._last_id + 1
         after = self._last.motion if self._last is not None else 0

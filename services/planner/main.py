@@ -5,7 +5,8 @@
 One process with a child (``schema/planner.py`` is the contract):
 
 * ``Planner/plan``: a worker thread decodes the ``MotionRequest``, takes the
-  start joints from the servo's progress, has the planning process
+  start joints from the servo's progress, decodes the request's parameters
+  once into a typed ``PlanRequest`` (``request.py``), has the planning process
   (``worker.py``) plan and check it, hands it to the servo's interpolator
   (``handover.py``, ``Servo/trajectory``) and replies ``PlanReply``. Motions
   are planned one at a time, in order. Meanwhile, with nothing buffered or
@@ -68,8 +69,10 @@ from jara_arm.services.runtime.timing import CONTROL_TIMEOUT, EARLY_START, SERVO
 from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .collision import DEFAULT_MARGIN
-from .planning import MotionPlanner, PlanRefused
 from .handover import Handover
+from .planning import MotionPlanner
+from .request import PlanRefused, PlanRequest
+from .trajectory import Joints
 from .worker import PlanningProcess
 
 log = logging.getLogger("jara_arm.planner")
@@ -156,56 +159,71 @@ class PlannerService:
     def plan(self, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> PlanReply:
         """Decode, plan and queue one motion; the reply says OK (with the motion's id) or why not."""
         try:
-            req = codec.decode_message(MOTION_REQUEST, payload, encoding)
+            wire = codec.decode_message(MOTION_REQUEST, payload, encoding)
         except WireError as exc:
             log.info("motion request refused: %s", exc)
             return self._refused(ReturnCode.VALUE_ERR, str(exc))
+        req: PlanRequest | None = None
         for _ in range(_REPLAN):
-            started = False
-
-            def start_early() -> None:
-                nonlocal started
-                began = time.perf_counter()
-                head = self.heads.head(req, start)
-                planned = time.perf_counter()
-                if head is not None and self.handover.start_early(head.motion, epoch):
-                    started = True
-                    done = time.perf_counter()
-                    # Where the time to the first command goes (bench/motion.py reads this line).
-                    log.info("%s starts early: head planned in %.1f ms (%.1f before it began, %.1f planning it, "
-                             "%.1f handing it over), %d samples before acceptance, within %.2f mm of the start",
-                             req.op, (done - t0) * 1e3, (began - t0) * 1e3, (planned - began) * 1e3,
-                             (done - planned) * 1e3, len(head.motion.q), head.reach * 1e3)
-
             try:
                 start, epoch = self.handover.start_point()
-                t0 = time.perf_counter()
-                previous = self.handover.last_motion() if req.settings.blendDistance > 0.0 else None
-                early = start_early if self.handover.can_start_early() else None
-                motion = self.planner.plan(req, start, previous, early)
-                if started:
-                    queued = self.handover.confirm_early(motion, epoch)
-                else:
-                    queued = self.handover.submit(motion, epoch)
+                if req is None:  # its parameters, once (request.py): after the servo's state, values come last
+                    req = PlanRequest.decode(wire)
             except PlanRefused as exc:
-                comment = exc.comment
-                if started:
-                    moved = self.handover.cancel_early()
-                    comment = f"{comment}; {moved}" if moved else comment
-                log.info("%s refused (%s): %s", req.op, exc.code.name, comment)
-                return self._refused(exc.code, comment)
-            if queued is not None:
-                motion_id, progress = queued
-                log.info("motion %d %s accepted: %.3f s long, planned in %.0f ms", motion_id, req.op,
-                         motion.duration, (time.perf_counter() - t0) * 1e3)
-                # One message per motion, for viewers.
-                # The preview arrives from the planning process after the motion: read it once queued.
-                self._path_pub.put_message(PLANNED_PATH, PlannedPath(
-                    motion_id, req.op, tuple(tuple(p) for p in self.planner.preview().tolist())))
-                return PlanReply(int(ReturnCode.OK), accepted_comment(motion_id), motion_id,
-                                 tuple(motion.end.tolist()), motion.duration, progress)
+                log.info("%s refused (%s): %s", wire.op, exc.code.name, exc.comment)
+                return self._refused(exc.code, exc.comment)
+            reply = self._plan_from(req, start, epoch)
+            if reply is not None:
+                return reply
             log.info("%s: the queue was stopped while planning; planning again", req.op)
         return self._refused(ReturnCode.STATUS_ERR, "the queue kept being stopped while planning")
+
+    def _plan_from(self, req: PlanRequest, start: Joints, epoch: int) -> PlanReply | None:
+        """Plan ``req`` from ``start`` (the servo's ``epoch``) in the planning process and hand it over, its head
+        early if it may start so; the reply, or None if the queue moved meanwhile (plan it again)."""
+        t0 = time.perf_counter()
+        started = False
+
+        def start_early() -> None:
+            nonlocal started
+            began = time.perf_counter()
+            head = self.heads.head(req, start)
+            planned = time.perf_counter()
+            if head is not None and self.handover.start_early(head.motion, epoch):
+                started = True
+                done = time.perf_counter()
+                # Where the time to the first command goes (bench/motion.py reads this line).
+                log.info("%s starts early: head planned in %.1f ms (%.1f before it began, %.1f planning it, "
+                         "%.1f handing it over), %d samples before acceptance, within %.2f mm of the start",
+                         req.op, (done - t0) * 1e3, (began - t0) * 1e3, (planned - began) * 1e3,
+                         (done - planned) * 1e3, len(head.motion.q), head.reach * 1e3)
+
+        try:
+            previous = self.handover.last_motion() if req.settings.blendDistance > 0.0 else None
+            early = start_early if self.handover.can_start_early() else None
+            motion = self.planner.plan(req, start, previous, early)
+            if started:
+                queued = self.handover.confirm_early(motion, epoch)
+            else:
+                queued = self.handover.submit(motion, epoch)
+        except PlanRefused as exc:
+            comment = exc.comment
+            if started:
+                moved = self.handover.cancel_early()
+                comment = f"{comment}; {moved}" if moved else comment
+            log.info("%s refused (%s): %s", req.op, exc.code.name, comment)
+            return self._refused(exc.code, comment)
+        if queued is None:
+            return None
+        motion_id, progress = queued
+        log.info("motion %d %s accepted: %.3f s long, planned in %.0f ms", motion_id, req.op,
+                 motion.duration, (time.perf_counter() - t0) * 1e3)
+        # One message per motion, for viewers.
+        # The preview arrives from the planning process after the motion: read it once queued.
+        self._path_pub.put_message(PLANNED_PATH, PlannedPath(
+            motion_id, req.op, tuple(tuple(p) for p in self.planner.preview().tolist())))
+        return PlanReply(int(ReturnCode.OK), accepted_comment(motion_id), motion_id,
+                         tuple(motion.end.tolist()), motion.duration, progress)
 
     def _refused(self, code: ReturnCode, comment: str) -> PlanReply:
         return PlanReply(int(code), comment, 0, (), 0.0, self.handover.progress())

@@ -6,9 +6,10 @@ hold the GIL, and the control queries (pause, stop) and the early start's head
 would wait behind it. In a child process it only competes for a CPU.
 
 The child is started with ``spawn`` (the parent has Zenoh threads), receives
-``(MotionRequest, start joints, previous motion or None)`` on a pipe and sends back the
-:class:`PlannedMotion` (pickled; its Ruckig profile is rebuilt on arrival) or
-the refusal. It exits when the pipe closes, so it never outlives the service.
+``(PlanRequest, start joints, previous motion or None)`` on a pipe (the
+request decoded already by the plan worker, ``request.py``: the child decodes
+nothing) and sends back the :class:`PlannedMotion` (pickled; its Ruckig
+profile is rebuilt on arrival) or the refusal. It exits when the pipe closes, so it never outlives the service.
 
 An accepted motion's preview (the viewers' polyline) follows as a second
 message: the parent queues the motion first (its first command goes out) and
@@ -30,11 +31,11 @@ from numpy.typing import NDArray
 
 from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.planner import MotionRequest
 from jara_arm.services.runtime.logs import setup_stderr
 
 from .collision import DEFAULT_MARGIN
-from .planning import MotionPlanner, PlanRefused
+from .planning import MotionPlanner
+from .request import PlanRefused, PlanRequest
 from .trajectory import Joints, PlannedMotion
 
 log = logging.getLogger(__name__)
@@ -101,7 +102,7 @@ class PlanningProcess:
             raise RuntimeError(f"the planning process did not start within {_START_TIMEOUT:.0f} s")
         self._conn.recv()
 
-    def plan(self, req: MotionRequest, start: Joints, previous: PlannedMotion | None = None,
+    def plan(self, req: PlanRequest, start: Joints, previous: PlannedMotion | None = None,
              meanwhile: Callable[[], None] | None = None) -> PlannedMotion:
         """The planned motion (``previous``: ``MotionPlanner.plan``'s), its ``preview`` empty (:meth:`preview`
         has it); raises PlanRefused (also if the child died: it is restarted). ``meanwhile`` runs in this

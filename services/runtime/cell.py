@@ -1,7 +1,7 @@
 """A secure cell's directory: its certificate authority, its identities and their roles.
 
 ``jara-arm certs init DIR`` makes it and ``jara-arm certs issue DIR NAME --role
-ROLE`` adds to it (``launcher/certs.py``); every program given ``--secure DIR``
+ROLE`` adds to it (``launcher/secure/certs.py``); every program given ``--secure DIR``
 reads it here and joins the network over mutual TLS as identity ``NAME``
 (:meth:`Cell.apply`). Every router and peer also enforces the roles of the
 registry with Zenoh's access control (:func:`jara_arm.schema.roles.access_control`).

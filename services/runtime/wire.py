@@ -49,7 +49,7 @@ def qos(traffic: Traffic) -> dict[str, Any]:
 def query_qos(key: str) -> dict[str, Any]:
     """The options of a querier on ``key``: its traffic class (``Traffic.REPLY`` for a key outside the table).
     A reply travels with its query's priority and congestion control (Zenoh decides so), so the querier
-    chooses both; the client gateway sets every client's queries to ``drop`` (launcher/gateway.py)."""
+    chooses both; the client gateway sets every client's queries to ``drop`` (launcher/up/gateway.py)."""
     try:
         return qos(traffic_of(key))
     except JaraArmError:

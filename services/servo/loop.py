@@ -12,15 +12,21 @@ threads change its state only through :meth:`ServoLoop.call`, which runs a
 function at the arm's next cycle; reads use the values the loop publishes
 every cycle (assigning a Python attribute is atomic).
 
-Alarms: the alarm monitor owns the arm's list (``schema/alarms.py``). What the
-servo detects itself (an e-stop put, a command that jumps or leaves the joint
-soft limits) it acts on in the same cycle and keeps as a *latch*, reported to
-the monitor on ``Monitor/report`` (again when its cause has gone, and again
-every ``REPORT_AGAIN`` until the monitor lists it). The servo follows the
-monitor's ``Monitor/alarms``: an alarm that appears there stops the arm (a
-FAULT also switches the servo off), and a latch is released once the monitor
-that listed it no longer does. While any latch or any listed alarm is active,
-position commands are dropped.
+Alarms: the servo's own latches and the alarm monitor's list it follows are
+``alarms.py``'s :class:`~.alarms.AlarmState`; the loop stops the arm for them
+in the cycle that raises or adopts them.
+
+Over 500 lines on purpose: this module is the cycle and everything that
+changes the state the cycle reads, at 1 kHz on the real-time thread (the
+commanded state's source, servo on / off, the stops for alarms, the
+interpolator's feed, feedback, status and ``Servo/motion``). Those parts act
+on one another within the cycle (an alarm stops the arm in the cycle that
+raises it; a hand-over is accepted against the law's state of that cycle) and
+share its hot attributes; split into objects they would add indirection and
+cross-object state to every cycle without making any part stand alone. What
+needs none of that is outside: the control law (``control.py``), the
+interpolator (``interpolator.py``), the alarm bookkeeping (``alarms.py``), the
+alarm monitor's watch (``monitor_watch.py``) and the world (``world.py``).
 """
 
 from __future__ import annotations
@@ -39,11 +45,11 @@ import zenoh
 from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
-from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmList, AlarmReport, format_code, is_newer
+from jara_arm.schema.alarms import ALARM_LIST, AlarmList, format_code
 from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.errors import WireError
-from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.motion import MOTION_PROGRESS, MotionAction, MotionProgress, MotionReply, Trajectory, TrajectoryRefusal
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.entities import Entities
@@ -60,6 +66,7 @@ from jara_arm.services.runtime.timing import (
 )
 from jara_arm.services.runtime.wire import Publication, decode_sample
 
+from .alarms import AlarmState
 from .control import RAN_DRY, REST_SPEED, STOPPED, ControlLaw, Refusal
 from .interpolator import Interpolator, prepare
 from .monitor_watch import MonitorWatch
@@ -75,9 +82,6 @@ T = TypeVar("T")
 SETTLED_CYCLES = 100
 #: Tracking tolerance when deciding that a soft-limit cause has gone [rad or m].
 LIMIT_TOLERANCE = 1e-3
-#: A latch the alarm monitor has not listed yet is reported again this often [s]
-#: (the monitor was down or restarted and lost it).
-REPORT_AGAIN = 0.5
 #: The alarm monitor's token and heartbeat are looked at, and ``Monitor/copy`` answered, every
 #: this many cycles [cycles]: 10 ms against a hung bound of 1.5 s, a twentieth of a busy arm's cycle.
 WATCH_EVERY = 10
@@ -88,16 +92,6 @@ MOTION_EVERY = 0.1
 OFF_FOR_ALARM = 1.0
 
 _SERVO_ON, _MOVING, _ALARM = int(StateBit.SERVO_ON), int(StateBit.MOVING), int(StateBit.ALARM)
-
-
-@dataclasses.dataclass
-class _Latch:
-    """An alarm the servo detected itself; it keeps the arm stopped until the monitor clears it."""
-
-    alarm: Alarm
-    present: bool  # the cause was present when last reported
-    acked: Time | None = None  # ``started`` of the monitor whose list held it; None: not listed yet
-    reported_at: float = -float("inf")  # [s] monotonic time of the last report
 
 
 @dataclasses.dataclass
@@ -141,9 +135,6 @@ class ServoLoop:
         self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
         self.state_bits = 0
         self.servo_on = False
-        self.latches: dict[int, _Latch] = {}  # by code: what the servo detected itself
-        self.monitor_alarms: tuple[Alarm, ...] = ()  # the alarm monitor's newest list
-        self._monitor_list: AlarmList | None = None
 
         self._late_cycles = 0  # consecutive cycles waited for a command mid-motion
         self._still_for = 0  # consecutive cycles at rest (see SETTLED_CYCLES)
@@ -164,7 +155,8 @@ class ServoLoop:
         self._alarms_sub = enter(session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256)))
         self._alarm_copy = AlarmListCopy(session, keys)
         self._monitor = MonitorWatch(session, keys, health)  # nobody else can watch the watcher
-        self._report_pub = enter(Publication(session, keys.monitor_report))
+        # The servo's own alarms and the monitor's list it follows; Monitor/report carries the former.
+        self.alarm_state = AlarmState(enter(Publication(session, keys.monitor_report)), self._log, self._cause_present)
         # The feedback and the status are MessagePack built by hand (messages.*_payload), fast.
         self._fb_pub = enter(Publication(session, keys.pos_feedback, Encoding.MSGPACK))
         # The 1 kHz feedback is encoded only while someone subscribes (none of our services do).
@@ -216,12 +208,13 @@ class ServoLoop:
     @property
     def alarmed(self) -> bool:
         """A latch or an alarm listed by the monitor is active: the arm must not move."""
-        return bool(self.latches or self.monitor_alarms)
+        state = self.alarm_state
+        return bool(state.latches or state.monitor_alarms)
 
     @property
     def alarms(self) -> tuple[Alarm, ...]:
         """The servo's own latches (what ``getActiveAlarm`` says when the monitor is silent)."""
-        return tuple(latch.alarm for latch in list(self.latches.values()))
+        return tuple(latch.alarm for latch in list(self.alarm_state.latches.values()))
 
     def call(self, fn: Callable[[], T], timeout: float = 1.0) -> T:
         """Run ``fn`` on the clock's thread at this arm's next cycle and return its result."""
@@ -284,7 +277,7 @@ class ServoLoop:
                 self._log.error("ignored a malformed alarm list from the monitor: %s", exc)
         self._watch_k += 1  # not k: it stands still while a late client stream is waited for
         if self._watch_k % WATCH_EVERY == self._watch_phase:
-            self._alarm_copy.answer(self._alarm_list_held)
+            self._alarm_copy.answer(self.alarm_state.held_list)
             self._watch_monitor()
         while self._calls:
             fn, fut = self._calls.popleft()
@@ -347,8 +340,8 @@ class ServoLoop:
         if self._target_wanted and law.consumed != consumed and self._target_pub is not None:
             self._target_pub.publisher.put(messages.timed_joint_pos_payload(tm_ns, law.q.tolist()))
         self._publish_motion()
-        if self.latches:  # every cycle: the monitor learns at once that a cause has gone
-            self._report_latches()
+        if self.alarm_state.latches:  # every cycle: the monitor learns at once that a cause has gone
+            self.alarm_state.report_latches()
         if (k - self._status_k >= (STATUS_EVERY_AT_REST if settled else STATUS_EVERY)
                 or (settled and self._status_changed())):  # moving: the FIFO changes every cycle
             self._status_k = k
@@ -411,13 +404,9 @@ class ServoLoop:
     def _raise(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
         """Stop (and for a FAULT switch off) now; latch the alarm and report it to the monitor."""
         cut = self._stop_for(int(code), kind)
-        if int(code) not in self.latches:
-            latch = _Latch(Alarm(int(code), kind, description), self._cause_present(int(code)))
-            self.latches[int(code)] = latch
-            self._log.error("alarm %s %s: %s", format_code(code), kind.value, description)
-            self._report(latch)
+        self.alarm_state.latch(code, kind, description)
         if cut is not None:  # after its cause, in the list too
-            self._not_completed(*cut)
+            self.alarm_state.not_completed(*cut)
 
     def _stop_for(self, code: int, kind: AlarmType) -> tuple[list[int], str] | None:
         """Stop the arm for alarm ``code``; the motions it cut short and why (for 0x420), if any."""
@@ -436,71 +425,21 @@ class ServoLoop:
             self._log.warning("servo off after the %s fault", format_code(code))
         return cut
 
-    def _not_completed(self, motions: list[int], why: str) -> None:
-        """The WARNING that accepted motions were discarded before their end (0x420)."""
-        description = f"motions {motions} discarded before their end: {why}"
-        code = int(AlarmCode.MOTION_NOT_COMPLETED)
-        if code in self.latches:  # one latch per code: the first one stands until cleared
-            self._log.warning("%s (alarm %s already active)", description, format_code(code))
-            return
-        latch = _Latch(Alarm(code, AlarmType.WARNING, description), False)
-        self.latches[code] = latch
-        self._log.warning("alarm %s %s: %s", format_code(code), AlarmType.WARNING.value, description)
-        self._report(latch)
-
-    def _report(self, latch: _Latch) -> None:
-        report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value)
-        latch.reported_at = time.monotonic()
-        try:
-            self._report_pub.put_message(ALARM_REPORT, report)
-        except Exception as exc:  # a report that cannot be sent is sent again later
-            self._log.warning("could not report alarm %s to the monitor: %s", format_code(latch.alarm.code), exc)
-
-    def _report_latches(self) -> None:
-        """Report every latch whose cause came or went, and again those not listed yet."""
-        now = time.monotonic()
-        for code, latch in list(self.latches.items()):
-            present = self._cause_present(code)
-            if present != latch.present or (latch.acked is None and now - latch.reported_at >= REPORT_AGAIN):
-                latch.present = present
-                self._report(latch)
-
-    def _alarm_list_held(self) -> AlarmList | None:
-        """The monitor's newest list less what was cleared without it: what this servo acts on."""
-        if self._monitor_list is None:
-            return None
-        return dataclasses.replace(self._monitor_list, alarms=self.monitor_alarms)
-
     def adopt_monitor_list(self, alarms: AlarmList) -> None:
         """Follow the monitor's list: stop for what is new there, release the latches it cleared."""
-        if not is_newer(alarms, self._monitor_list):
-            return  # published before the one already adopted
-        previous = self._monitor_list
-        self._monitor_list = alarms
-        listed = {a.code for a in alarms.alarms}
-        for code, latch in list(self.latches.items()):
-            if code in listed:
-                latch.acked = alarms.started
-            elif latch.acked == alarms.started:
-                del self.latches[code]
-                self._log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
-            elif previous is not None and alarms.started != previous.started:
-                latch.acked = None  # a new monitor: tell it at once
-                latch.reported_at = -float("inf")
-        before = {a.code for a in self.monitor_alarms}
-        self.monitor_alarms = alarms.alarms
-        for alarm in alarms.alarms:
-            if alarm.code not in before and alarm.code not in self.latches:
-                self._log.warning("alarm %s %s from the alarm monitor: stopping the arm (%s)",
-                            format_code(alarm.code), alarm.type.value, alarm.description)
-                cut = self._stop_for(alarm.code, alarm.type)
-                if cut is not None:
-                    self._not_completed(*cut)
+        self.alarm_state.adopt(alarms, self._stop_for_listed)
+
+    def _stop_for_listed(self, alarm: Alarm) -> None:
+        """Stop the arm for ``alarm``, new in the monitor's list."""
+        cut = self._stop_for(alarm.code, alarm.type)
+        if cut is not None:
+            self.alarm_state.not_completed(*cut)
 
     def servo_on_now(self) -> str | None:
         """Servo on; returns why not, or None."""
         if self.alarmed:
-            codes = sorted({*self.latches, *(a.code for a in self.monitor_alarms)})
+            state = self.alarm_state
+            codes = sorted({*state.latches, *(a.code for a in state.monitor_alarms)})
             return "alarms active: " + ", ".join(format_code(c) for c in codes) + "; clear them first"
         if self.law.braking is not None and not self.servo_on:  # already on (after a WARNING): nothing to do
             return "the arm is still stopping"
@@ -525,19 +464,11 @@ class ServoLoop:
 
         Returns (cleared, still active).
         """
-        cleared, kept = list(self.monitor_alarms), []
-        self.monitor_alarms = ()
-        for code, latch in list(self.latches.items()):
-            if self._cause_present(code):
-                kept.append(latch.alarm)
-            else:
-                cleared.append(self.latches.pop(code).alarm)
-                self._log.info("alarm %s cleared", format_code(code))
-        return cleared, kept
+        return self.alarm_state.clear()
 
     def _watch_monitor(self) -> None:
         """The alarm monitor's token and heartbeat (``monitor_watch.py``): 0x403 gone, 0x413 hung."""
-        for found in self._monitor.look(AlarmCode.MONITOR_HUNG in self.latches):
+        for found in self._monitor.look(AlarmCode.MONITOR_HUNG in self.alarm_state.latches):
             if found.alarm is not None:
                 self._raise(found.alarm, AlarmType.FAULT, found.description)
             elif found.warning:

@@ -88,7 +88,7 @@ class ServoCommon:
 
     def servoON(self) -> Reply:
         why = self.loop.call(self.loop.servo_on_now)
-        if why and self.loop.monitor_alarms and self.refresh():
+        if why and self.loop.alarm_state.monitor_alarms and self.refresh():
             why = self.loop.call(self.loop.servo_on_now)  # alarms just cleared through another interface
         if why:
             raise Refusal(ReturnCode.STATUS_ERR, f"servoON refused: {why}")
@@ -203,7 +203,7 @@ class ServoService(ArmService):
             ctx.every(WORLD_PERIOD, world.publish)
             if common.refresh():  # a restarted servo knows the active alarms before it says it is up
                 log.info("active alarms from the alarm monitor: %s",
-                         ", ".join(format_code(a.code) for a in loop.monitor_alarms) or "none",
+                         ", ".join(format_code(a.code) for a in loop.alarm_state.monitor_alarms) or "none",
                          extra={"arm": keys.arm})
             m = loop.model
             ctx.up(f"servo up: arm {keys.arm}, robot {m.name} ({m.axis_num} axes"

@@ -1,11 +1,12 @@
-"""The table of services the launcher runs for every arm, in start order.
+"""The table of services the launcher runs for every arm, in start order, and ``jara-arm service NAME``.
 
 A service is a module ``jara_arm.services.<x>`` whose ``main`` module names its
 ``PROGRAM`` (an ``runtime.service.ArmService``) and its ``run(argv) -> int`` entry,
 with a ``__main__`` so that
 ``python -m jara_arm.services.<x>`` runs it. List a service here only once its
 module exists; ``jara-arm up`` starts them in this order and stops them in the
-reverse order (the command service before the servo it drives).
+reverse order (the command service before the servo it drives). ``jara-arm service NAME``
+runs one of them in this process (as compose does).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from types import ModuleType
 from typing import TYPE_CHECKING
 
 from jara_arm.schema.keys import Service
+
+from ..command import Command
 
 if TYPE_CHECKING:
     from jara_arm.services.runtime.service import ArmService
@@ -67,3 +70,27 @@ def spec(name: str) -> ServiceSpec:
         if s.name == name:
             return s
     raise KeyError(f"no service {name!r}; services: {', '.join(NAMES)}")
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("name", choices=NAMES, metavar="NAME",
+                        help="; ".join(f"{s.name}: {s.description}" for s in SERVICES))
+    parser.add_argument("args", nargs=argparse.REMAINDER,
+                        help="the service's arguments (jara-arm service NAME --help)")
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    return spec(args.name).run(args.args)
+
+
+def _inner(words: list[str]) -> tuple[argparse.ArgumentParser, list[str]] | None:
+    """``NAME ARGS...``: the service's own parser, and ARGS."""
+    if words and words[0] in NAMES:
+        return spec(words[0]).parser(), words[1:]
+    return None
+
+
+COMMAND = Command(
+    "service", arguments=_arguments, run=_run, inner=_inner,
+    help="run one service in this process",
+    description="Run one service of one arm in this process (as compose does).")

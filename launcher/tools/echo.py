@@ -8,8 +8,10 @@ threads never wait on the printing) that the caller's loop drains.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
+import sys
 import threading
 import time
 from typing import Any, TextIO
@@ -19,8 +21,12 @@ import zenoh
 from jara_arm.schema import codec
 from jara_arm.schema.codec import Encoding
 from jara_arm.schema.errors import JaraArmError
-from jara_arm.schema.keys import KEY_TABLE, PREFIX, ArmKeys
+from jara_arm.schema.keys import KEY_TABLE, PREFIX, ArmKeys, Service
+from jara_arm.services.runtime.arguments import positive_float, positive_int
 
+from ..command import USAGE_ERROR, Command, setup_logging
+from ..session import add_arm, add_client_zenoh_arguments, open_session
+from ..stop_signals import StopSignals
 from .arm_state import sample_encoding
 
 _ARM_CHUNK = f"{PREFIX}/<arm>/"
@@ -57,6 +63,17 @@ def echo_key(arm: str, key: str) -> str:
         raise EchoKeyError(f"no published key {key!r} under {PREFIX}/<arm>/; keys: {', '.join(valid)} "
                            "('*' is one chunk, '**' any number)")
     return f"{ArmKeys(arm).root}/{key}"
+
+
+def echo_words() -> tuple[str, ...]:
+    """The keys bash offers for ``echo``: :func:`echo_keys`, a ``<service>`` chunk spelled out for each service
+    (a ``*`` in a completion word would meet the shell's file globbing)."""
+    words = [k for k in echo_keys() if "*" not in k]
+    for row in KEY_TABLE:
+        suffix = row.key.removeprefix(f"{PREFIX}/<arm>/")
+        if suffix.endswith("/<service>") and "/".join(suffix.split("/")[:-1]) + "/*" in echo_keys():
+            words += [f"{suffix.rsplit('/', 1)[0]}/{s.value}" for s in Service]
+    return tuple(dict.fromkeys(words))
 
 
 def decode_payload(payload: bytes, encoding: object | None) -> Any:
@@ -152,3 +169,44 @@ def run_echo(session: zenoh.Session, settings: EchoSettings, stop: threading.Eve
         return 0
     finally:
         sub.undeclare()
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    add_arm(parser)
+    parser.add_argument("key", metavar="KEY", help="relative to JARA_ARM/<arm>/, e.g. state, log/**")
+    parser.add_argument("--rate", type=positive_float, metavar="HZ",
+                        help="print at most this many samples a second (thins the 1 kHz streams)")
+    ends = parser.add_mutually_exclusive_group()
+    ends.add_argument("--once", action="store_true", help="exit after the first sample")
+    ends.add_argument("--count", type=positive_int, metavar="N", help="exit after N samples")
+    parser.add_argument("--timeout", type=positive_float, metavar="S",
+                        help="exit 1 if the samples asked for did not come within S seconds (joining the network "
+                        "included)")
+    parser.add_argument("--show-key", action="store_true",
+                        help='print {"key": ..., "value": ...} (for keys with wildcards)')
+    add_client_zenoh_arguments(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """The key checked first (exit 2, nothing joined), then one session for its samples."""
+    setup_logging("WARNING")
+    try:
+        key = echo_key(args.arm, args.key)
+    except EchoKeyError as exc:
+        print(f"{parser.prog}: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    began = time.monotonic()
+    session = open_session(args, parser, join_within=args.timeout)
+    signals = StopSignals()
+    with session:
+        count = 1 if args.once else args.count
+        return run_echo(session, EchoSettings(key, args.rate, count, args.timeout, args.show_key, began),
+                        signals.stop, sys.stdout, sys.stderr)
+
+
+COMMAND = Command(
+    "echo", arguments=_arguments, run=_run, words=echo_words(),
+    help="print the samples of any key as JSON lines",
+    description="Subscribe to JARA_ARM/<arm>/KEY and print every sample decoded (MessagePack "
+    "or JSON) as one JSON line. Keys: " + ", ".join(echo_keys()) + " ('*' is one chunk, "
+    "'**' any number of them).")

@@ -10,8 +10,10 @@ their publications, drained from ring channels by the refresh loop.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
+import sys
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -27,7 +29,11 @@ from jara_arm.schema.keys import Service, parse_heartbeat
 from jara_arm.schema.messages import LOOP_HEALTH, LoopHealth
 from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.types import Alarm
+from jara_arm.services.runtime.arguments import positive_float
 
+from ..command import Command, setup_logging
+from ..session import add_arm, add_client_zenoh_arguments, no_answer, open_session
+from ..stop_signals import StopSignals
 from .arm_state import format_state, read_state, sample_encoding
 from .client import ArmClient, ClientError
 from .wait import alive_services
@@ -240,3 +246,33 @@ def run_state(client: ArmClient, stop: threading.Event, out: TextIO, *, once: bo
                 return 0
     finally:
         pubs.close()
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    add_arm(parser)
+    parser.add_argument("--once", action="store_true", help="print one view and exit")
+    parser.add_argument("--period", type=positive_float, default=0.5, metavar="S",
+                        help="refresh period [s] (default: 0.5)")
+    add_client_zenoh_arguments(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    setup_logging("WARNING")
+    session = open_session(args, parser)
+    signals = StopSignals()
+    with session:
+        client = ArmClient(session, args.arm, timeout=2.0)
+        try:
+            return run_state(client, signals.stop, sys.stdout, once=args.once, period=args.period,
+                             tty=sys.stdout.isatty())
+        except ClientError as exc:
+            return no_answer(args, parser, exc)
+        finally:
+            client.close()
+
+
+COMMAND = Command(
+    "state", arguments=_arguments, run=_run,
+    help="a live one-screen view of an arm",
+    description="State bits by name, queue depth, joints, Cartesian pose, active alarms, servo "
+    "loop health and services, refreshed in place on a terminal (as repeated blocks otherwise).")

@@ -17,11 +17,13 @@ Everything is done with the ``cryptography`` package, in this process: no
 
 from __future__ import annotations
 
+import argparse
 import datetime as dt
 import ipaddress
 import json
 import os
 import re
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
@@ -35,8 +37,11 @@ from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys
 from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.roles import Role, RoleError
+from jara_arm.services.runtime.arguments import positive_int
 from jara_arm.services.runtime.cell import ROUTER_IDENTITY, SERVICE_IDENTITY, Cell, CellError, Identity, check_name
 from jara_arm.services.runtime.zenoh_args import DEFAULT_PORT, default_endpoint
+
+from ..command import USAGE_ERROR, Command
 
 #: What a certificate is valid for unless told otherwise: this host, by name and by address.
 DEFAULT_HOSTS = ("localhost", "127.0.0.1", "::1")
@@ -407,3 +412,68 @@ def report_list(root: Path, out: TextIO) -> None:
     else:
         print("\n".join(table(identities)), file=out)
 
+
+def _hosts(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--host", action="append", default=[], metavar="H",
+                        help=f"a DNS name or IP address the {what} may serve TLS on (repeatable; "
+                        f"default: {', '.join(DEFAULT_HOSTS)})")
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    """The actions, each with the report that runs it (``report``)."""
+    actions = parser.add_subparsers(dest="certs_command", required=True, metavar="ACTION")
+    making = actions.add_parser(
+        "init", help="make a cell: its CA, and the identities router and service",
+        description="Make the cell directory DIR (and its parents): a new certificate authority, an empty "
+        "registry, and the identities that `jara-arm up --secure DIR` runs as: router (role router) and "
+        "service (role service). Refuses a directory that already holds a CA.")
+    making.add_argument("dir", type=Path, metavar="DIR", help="the cell directory to make")
+    making.add_argument("--days", type=positive_int, default=CA_DAYS, metavar="N",
+                        help=f"the CA's validity [days] (default: {CA_DAYS}); router's and "
+                        f"service's: the same, or {ISSUE_DAYS} if shorter")
+    _hosts(making, "router's and service's certificates")
+    making.set_defaults(report=lambda args: report_init(args.dir, sys.stdout, days=args.days,
+                                                        hosts=args.host or DEFAULT_HOSTS))
+    issuing = actions.add_parser(
+        "issue", help="issue an identity: its key, certificate and Zenoh configuration",
+        description="Issue identity NAME with ROLE in the cell DIR (where its ca.key is): NAME.key, NAME.pem, "
+        "NAME.json5, and its entry in the registry. Copy the three files to NAME's host, and cell.json "
+        "to every router of the cell.")
+    issuing.add_argument("dir", type=Path, metavar="DIR", help="the cell directory")
+    issuing.add_argument("name", metavar="NAME",
+                         help="the identity's name (its certificate's common name): 1-64 of [A-Za-z0-9_.-]")
+    issuing.add_argument("--role", required=True, choices=[r.value for r in Role], metavar="ROLE",
+                         help=f"what NAME may do: {', '.join(r.value for r in Role)}")
+    _hosts(issuing, "certificate")
+    issuing.add_argument("--days", type=positive_int, default=ISSUE_DAYS, metavar="N",
+                         help=f"the certificate's validity [days] (default: {ISSUE_DAYS})")
+    issuing.add_argument("--force", action="store_true",
+                         help="replace an identity already issued (new key, new serial)")
+    issuing.set_defaults(report=lambda args: report_issue(args.dir, args.name, Role(args.role), sys.stdout,
+                                                          hosts=args.host or DEFAULT_HOSTS, days=args.days,
+                                                          force=args.force))
+    listing = actions.add_parser(
+        "list", help="the identities of a cell: name, role, expiry, hosts",
+        description="One line per identity of the cell's registry: name, role, expiry (EXPIRED once "
+        "past), hosts.")
+    listing.add_argument("dir", type=Path, metavar="DIR", help="the cell directory")
+    listing.set_defaults(report=lambda args: report_list(args.dir, sys.stdout))
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """What was made or found on stdout; a mistake (exit 2) on stderr."""
+    try:
+        args.report(args)
+        return 0
+    except (CertsError, CellError) as exc:
+        print(f"{parser.prog}: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+
+
+COMMAND = Command(
+    "certs", arguments=_arguments, run=_run,
+    help="make a secure cell's certificate authority and issue its certificates",
+    description="A secure cell (--secure DIR) is a directory: its own certificate authority (ca.pem, "
+    "ca.key), a registry of identities and their roles (cell.json), and for each identity NAME a "
+    "certificate (common name NAME), a private key and a Zenoh configuration (NAME.pem, NAME.key, "
+    "NAME.json5). Roles: " + ", ".join(r.value for r in Role) + ".")

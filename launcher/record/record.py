@@ -5,7 +5,7 @@ every publication, the 1 kHz streams and the call traces included (the servers
 of the Common, Middle, Servo/Common and Monitor/Common interfaces publish each
 call they answer while a subscriber like this one listens: ``trace/...``).
 The subscriber's callback only stamps the sample with its arrival time and
-queues it; this command's loop transcodes and writes (``launcher/recording.py``)
+queues it; this command's loop transcodes and writes (``launcher/record/recording.py``)
 and shows the size, message count and rate on stderr every second.
 
 The recorder runs at a lower CPU priority (nice +10): on a busy machine it
@@ -15,20 +15,27 @@ counted, said and makes the exit status 1.
 
 from __future__ import annotations
 
+import argparse
 import collections
 import dataclasses
 import os
+import sys
 import threading
 import time
+from pathlib import Path
 from typing import TextIO
 
 import zenoh
 
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import ArmKeys, any_arm_every_key, arm_of
+from jara_arm.services.runtime.arguments import positive_float
 
+from ..command import USAGE_ERROR, Command, setup_logging
+from ..session import add_client_zenoh_arguments, arm_id, open_session
+from ..stop_signals import StopSignals
 from .progress import Progress, human_size
-from .recording import RecordingWriter, to_json
+from .recording import RecordingError, RecordingWriter, to_json
 
 _CAPACITY = 500_000  #: samples buffered between the callback and the writer (~2 min of 4 arms at full rate)
 _BATCH = 2_000  #: samples written between two looks at the clock
@@ -145,3 +152,40 @@ def run_record(session: zenoh.Session, writer: RecordingWriter, settings: Record
                      f"({inbox.capacity} buffered at most)")
         return 1
     return 0
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--arm", action="append", type=arm_id, default=[], metavar="ID",
+                        help="an arm to record (repeatable; default: every arm)")
+    parser.add_argument("-o", "--output", required=True, metavar="FILE.mcap", help="the file to write")
+    parser.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
+    add_client_zenoh_arguments(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """The file opened first (a path that cannot be written: exit 2, nothing joined)."""
+    setup_logging("WARNING")
+    try:
+        writer = RecordingWriter(Path(args.output))
+    except RecordingError as exc:
+        print(f"{parser.prog}: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    try:
+        session = open_session(args, parser)
+    except SystemExit:
+        writer.close()
+        raise
+    signals = StopSignals()
+    lower_priority()
+    with session:
+        return run_record(session, writer, RecordSettings(tuple(dict.fromkeys(args.arm)), args.duration),
+                          signals.stop, sys.stderr, sys.stderr.isatty())
+
+
+COMMAND = Command(
+    "record", arguments=_arguments, run=_run,
+    help="record every sample of the arms into an MCAP file",
+    description="Subscribe to JARA_ARM/<arm>/** and write every sample (the 1 kHz streams and the traces "
+    "of the Common and Middle calls with their replies included) into an MCAP file: a channel per key, "
+    "JSON messages, a JSON Schema per channel from schema/. Shows size, count and rate every second; "
+    "stops on SIGINT/SIGTERM or after --duration.")

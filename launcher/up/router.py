@@ -1,4 +1,5 @@
-"""The launcher's Zenoh router session, shared by ``jara-arm up`` and ``jara-arm router``.
+"""The launcher's Zenoh router session, shared by ``jara-arm up`` and ``jara-arm router``, and the
+``router`` command.
 
 Clients and peers that connect to any of its listen endpoints reach every
 service that joined through it: the router routes between its clients.
@@ -6,6 +7,7 @@ service that joined through it: the router routes between its clients.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import logging
@@ -17,15 +19,17 @@ import zenoh
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import any_arm_alive, parse_alive
 from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
-from jara_arm.services.runtime.zenoh_args import default_endpoint, zenoh_config
+from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
+from ..command import Command, setup_logging
+from ..secure.refusals import RefusalLog
+from ..stop_signals import StopSignals
 from .gateway import GATEWAY_ZID, FeedbackRelay, bus_config, gateway_config
-from .refusals import RefusalLog
-from .supervisor import StopSignals
 
 log = logging.getLogger("jara_arm.launcher")
 
 DEFAULT_LISTEN = default_endpoint(None)
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")  #: ``--log-level`` of ``up`` and ``router``
 _RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
 _JSON5_MESSAGE = re.compile(r'msg: "(.*?)", location')
 #: Unspecified addresses a router may listen on, and what a local process connects to instead.
@@ -53,7 +57,7 @@ class RouterSettings:
     multicast: bool = False
     secure: str | None = None  #: the cell directory (``--secure``); None: an open cell
     identity: str = ROUTER_IDENTITY
-    #: a client gateway (``--gateway``): best effort to every client, never waiting on one (launcher/gateway.py)
+    #: a client gateway (``--gateway``): best effort to every client, never waiting on one (launcher/up/gateway.py)
     gateway: bool = False
     #: a router of the cell bus (``--bus``): its blocking publications reach the gateways as best effort
     bus: bool = False
@@ -172,3 +176,56 @@ def run_router(settings: RouterSettings, signals: StopSignals) -> int:
     log.info("router stopped")
     sys.stdout.flush()
     return 0
+
+
+def add_router_options(parser: argparse.ArgumentParser) -> None:
+    """``--log-level``, and the shared Zenoh options with the mode fixed to router (so --mode is hidden)."""
+    parser.add_argument("--log-level", type=str.upper, default="INFO", choices=LOG_LEVELS,
+                        help="default: INFO")
+    add_zenoh_arguments(parser, default_mode="router", default_identity=ROUTER_IDENTITY, fixed_mode=True)
+
+
+def router_settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> RouterSettings:
+    """The router options of ``up`` or ``router``, checked (exit 2 if wrong), their listen endpoints resolved."""
+    settings = RouterSettings(tuple(args.listen), tuple(args.connect), args.config, args.multicast,
+                              args.secure, args.identity, gateway=getattr(args, "gateway", False),
+                              bus=getattr(args, "bus", False),
+                              gateway_ids=tuple(getattr(args, "gateway_id", None) or (GATEWAY_ZID,)))
+    for zid in settings.gateway_ids:
+        if not re.fullmatch(r"[1-9a-f][0-9a-f]{0,31}", zid):
+            parser.error(f"--gateway-id {zid!r}: a Zenoh id is 1 to 32 lowercase hex digits, not starting with 0")
+    try:  # resolve the listen endpoints once (--listen, else the config file's, else the default)
+        return dataclasses.replace(settings, listen=settings.endpoints())
+    except RouterError as exc:
+        parser.error(str(exc))
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    role = parser.add_mutually_exclusive_group()
+    role.add_argument("--gateway", action="store_true",
+                      help="a client gateway: clients join it, it joins the cell bus (--connect); every "
+                      "publication it forwards is best effort and it never waits on a client")
+    role.add_argument("--bus", action="store_true",
+                      help="a router of the cell bus, which only services and gateways join: its blocking "
+                      "publications (low-level position commands) reach the gateways as best effort")
+    parser.add_argument("--gateway-id", action="append", default=[], metavar="HEX",
+                        help=f"the gateway's Zenoh id (default: {GATEWAY_ZID}); with --bus, every "
+                        "gateway's (repeatable)")
+    add_router_options(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    settings = router_settings(args, parser)
+    setup_logging(args.log_level)
+    signals = StopSignals()
+    try:
+        return run_router(settings, signals)
+    except RouterError as exc:
+        parser.error(str(exc))
+
+
+COMMAND = Command(
+    "router", arguments=_arguments, run=_run,
+    help="run a plain Zenoh router that services and clients join",
+    description=f"A Zenoh router (default listen endpoint {DEFAULT_LISTEN}) that runs "
+    "until SIGINT/SIGTERM, reporting the services that join or leave.")

@@ -36,7 +36,7 @@ from jara_arm.schema.channels import channel_schema
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import arm_of
 
-from .echo import decode_payload
+from ..tools.echo import decode_payload
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"

@@ -9,6 +9,8 @@ Exits 1 if a step that should succeed did not.
 
 from __future__ import annotations
 
+import argparse
+import sys
 import time
 from collections.abc import Callable
 from typing import TextIO, TypeVar
@@ -18,9 +20,12 @@ import numpy as np
 from jara_arm.client import Arm, ArmError, Motion, MotionFailed, Refused, rel
 from jara_arm.robots import ROBOTS, Family, RobotModel
 from jara_arm.schema.codes import ReturnCode, StateBit
-from jara_arm.schema.keys import Service
+from jara_arm.schema.keys import DEFAULT_ARM, Service
 
-from .client import ArmClient
+from ..command import Command, setup_logging
+from ..session import add_client_zenoh_arguments, arm_id, open_session
+from ..stop_signals import StopSignals
+from .client import ArmClient, ClientError
 
 SPEED_JOINT = 40  # [%]
 SPEED_CARTESIAN = 60  # [%] of 0.25 m/s by default
@@ -169,3 +174,29 @@ def run_demo(arm: Arm, out: TextIO) -> int:
     d.step("servoOFF", arm.servoOFF)
     d.say("demo done" if not d.failed else f"demo: {len(d.failed)} step(s) failed: {', '.join(d.failed)}")
     return len(d.failed)
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--arm", type=arm_id, default=DEFAULT_ARM, metavar="ID",
+                        help=f"the arm to drive (default: {DEFAULT_ARM})")
+    add_client_zenoh_arguments(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    setup_logging("WARNING")
+    session = open_session(args, parser)
+    StopSignals()  # SIGINT/SIGTERM noted, not obeyed: the demo runs to its end (servo off)
+    with session:
+        try:
+            with Arm(session, args.arm) as arm:
+                return 1 if run_demo(arm, sys.stdout) else 0
+        except (ClientError, ArmError) as exc:
+            print(f"{parser.prog}: {exc}", file=sys.stderr)
+            return 1
+
+
+COMMAND = Command(
+    "demo", arguments=_arguments, run=_run,
+    help="drive a running arm through a short, visible sequence",
+    description="Servo on, speeds, PTP, LIN, CIRC, pause/resume, home, servo off, over the "
+    "public interface only; prints each step with its return code and what was measured.")

@@ -8,9 +8,12 @@ the request.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import difflib
 import json
+import sys
+import time
 from collections.abc import Mapping
 from typing import Any, TextIO
 
@@ -20,8 +23,12 @@ from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.operations import ALL, COMMON, Operation
+from jara_arm.services.runtime.arguments import positive_float
 
-from .client import ArmClient
+from ..command import USAGE_ERROR, Command, setup_logging
+from ..session import add_arm, add_client_zenoh_arguments, no_answer, open_session
+from ..stop_signals import StopSignals
+from .client import ArmClient, ClientError
 
 #: Exit status of a reply whose id is not OK, or of no reply at all.
 FAILED = 1
@@ -174,3 +181,50 @@ def run_call(client: ArmClient, call: Call, out: TextIO, err: TextIO) -> int:
     print(f"jara-arm call: {call.op.name}: {return_code_name(reply.id)} ({reply.id}): {reply.comment}",
           file=err, flush=True)
     return FAILED
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    add_arm(parser)
+    parser.add_argument("--servo", action="store_true",
+                        help="ask the servo (Servo/Common/<op>) instead of the command service")
+    parser.add_argument("--timeout", type=positive_float, default=10.0, metavar="S",
+                        help="wait this long to join the network, and then for the reply [s] (default: 10)")
+    parser.add_argument("op", metavar="OP", help="the operation's name (IDL, or Ext), e.g. movePTPJointAbs")
+    parser.add_argument("json", nargs="?", metavar="JSON",
+                        help="the in parameters as a JSON object (default: none)")
+    add_client_zenoh_arguments(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """The call checked first (exit 2, nothing sent), then one session for it."""
+    setup_logging("WARNING")
+    try:
+        call = parse_call(args.op, args.json, args.servo)
+    except CallError as exc:
+        print(f"{parser.prog}: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    began = time.monotonic()
+    session = open_session(args, parser, join_within=args.timeout)
+    StopSignals()  # SIGINT/SIGTERM noted, not obeyed: the reply is waited for (within --timeout)
+    with session:
+        # [s] for the reply: what joining left of the timeout
+        client = ArmClient(session, args.arm, timeout=max(0.1, args.timeout - (time.monotonic() - began)))
+        try:
+            return run_call(client, call, sys.stdout, sys.stderr)
+        except ClientError as exc:
+            return no_answer(args, parser, exc)
+        finally:
+            client.close()
+
+
+COMMAND = Command(
+    "call", arguments=_arguments, run=_run,
+    # the servo serves the Common operations only
+    words=operation_names(), option_words={"--servo": operation_names(servo=True)},
+    help="call any operation by its name (IDL or Ext) and print the reply as JSON",
+    description="Call one of the Common, Middle or Ext operations (Servo/Common with --servo) and "
+    "print the reply {id, comment, <out parameters>} as JSON; exit 1 if its id is not OK. "
+    "The parameters are checked here first: a mistake is reported with the operation's "
+    "parameter list, and nothing is sent.",
+    epilog="examples: jara-arm call servoON; jara-arm call setSpeedJoint '{\"spdRatio\": 50}'; "
+    "jara-arm call setSpeedJoint 50 (an operation's one parameter may come alone)")

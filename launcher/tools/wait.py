@@ -8,8 +8,10 @@ the services' liveliness tokens.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import enum
+import sys
 import threading
 import time
 from typing import TextIO
@@ -18,7 +20,11 @@ import zenoh
 
 from jara_arm.schema.codes import StateBit
 from jara_arm.schema.keys import ArmKeys, Service, parse_alive
+from jara_arm.services.runtime.arguments import positive_float
 
+from ..command import Command, setup_logging
+from ..session import add_arm, add_client_zenoh_arguments, no_answer, open_session
+from ..stop_signals import StopSignals
 from .arm_state import format_state
 from .client import ArmClient, ClientError
 
@@ -104,3 +110,37 @@ def run_wait(client: ArmClient, condition: Condition, timeout: float, poll: floa
         if stop.wait(min(poll, max(0.0, deadline - time.monotonic()))):
             print(f"jara-arm wait: interrupted; last seen: {seen.seen}", file=err, flush=True)
             return INTERRUPTED
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    add_arm(parser)
+    parser.add_argument("condition", choices=[c.value for c in Condition], metavar="CONDITION",
+                        help=", ".join(c.value for c in Condition))
+    parser.add_argument("--timeout", type=positive_float, default=60.0, metavar="S",
+                        help="give up after S seconds, joining the network included (default: 60)")
+    parser.add_argument("--poll", type=positive_float, default=0.05, metavar="S",
+                        help="look this often [s] (default: 0.05)")
+    add_client_zenoh_arguments(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    setup_logging("WARNING")
+    began = time.monotonic()
+    session = open_session(args, parser, join_within=args.timeout)
+    signals = StopSignals()
+    with session:
+        client = ArmClient(session, args.arm, timeout=2.0)
+        try:
+            return run_wait(client, Condition(args.condition), args.timeout, args.poll, signals.stop, sys.stderr,
+                            began)
+        except ClientError as exc:
+            return no_answer(args, parser, exc)
+        finally:
+            client.close()
+
+
+COMMAND = Command(
+    "wait", arguments=_arguments, run=_run,
+    help="wait until the arm meets a condition (for scripts)",
+    description="Exit 0 as soon as the condition holds, 1 with what was seen last if it did not "
+    "within the timeout. Conditions: " + "; ".join(f"{c.value}: {h}" for c, h in CONDITION_HELP.items()))

@@ -1,6 +1,6 @@
 """``jara-arm up``: every service of every arm, on a private cell bus, behind a client gateway, on this host.
 
-Topology (launcher/gateway.py): the launcher process is the **cell bus**, a Zenoh router on a
+Topology (launcher/up/gateway.py): the launcher process is the **cell bus**, a Zenoh router on a
 private endpoint (a Unix socket only this user can open) that every service process joins as a
 client. A **client gateway**, a router process of its own,
 listens on the given endpoints and joins the bus: clients reach every service of every arm
@@ -12,6 +12,7 @@ reverse start order, on SIGINT/SIGTERM.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import logging
 import os
@@ -20,16 +21,20 @@ import sys
 import time
 from collections.abc import Callable
 
-from jara_arm.schema.keys import Service, any_arm_log
+from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
+from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, any_arm_log, check_arm
 from jara_arm.services.runtime.cell import SERVICE_IDENTITY
 from jara_arm.services.runtime.realtime import realtime_process
-from jara_arm.services.runtime.timing import SAME_HOST, Health, health_argv
+from jara_arm.services.runtime.timing import SAME_HOST, Health, add_health_arguments, health_argv, health_from_args
 
+from ..command import Command, setup_logging
+from ..stop_signals import StopSignals
+from ..tools.watch import LogPrinter
 from .gateway import private_bus
-from .router import Presence, RouterError, RouterSettings, local_endpoint, open_router, say
-from .services import SERVICES, ServiceSpec
-from .supervisor import Child, StopSignals, Supervisor
-from .watch import LogPrinter
+from .router import (DEFAULT_LISTEN, Presence, RouterError, RouterSettings, add_router_options, local_endpoint,
+                     open_router, router_settings, say)
+from .services import NAMES, SERVICES, ServiceSpec
+from .supervisor import Child, Supervisor
 
 log = logging.getLogger("jara_arm.launcher")
 
@@ -276,3 +281,72 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
             presence.close()
     log.info("stopped")
     return 0
+
+
+def _obstacle(text: str) -> str:
+    """``--obstacle`` and ``--hidden-obstacle``: checked here, passed on to the services as written."""
+    try:
+        return Obstacle.parse(text).argument()
+    except RobotModelError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--arm", action="append", default=[], metavar="ID[:ROBOT]",
+                        help=f"an arm to run, optionally with its own robot model "
+                        f"(repeatable; default: {DEFAULT_ARM})")
+    parser.add_argument("--robot", default=DEFAULT_ROBOT, choices=list(ROBOTS),
+                        help=f"robot model of the arms given without one (default: {DEFAULT_ROBOT})")
+    parser.add_argument("--demo", action="store_true",
+                        help="once ready, drive every arm through `jara-arm demo`")
+    parser.add_argument("--obstacle", action="append", default=[], type=_obstacle,
+                        metavar="X,Y,Z,HX,HY,HZ",
+                        help="a fixed box in every arm's simulated world, which every motion keeps "
+                        "clear of: centre and half extents [m] (repeatable)")
+    parser.add_argument("--hidden-obstacle", action="append", default=[], type=_obstacle,
+                        metavar="X,Y,Z,HX,HY,HZ",
+                        help="a box in the simulated world that the planners are not told of (an "
+                        "unmodelled obstacle, as for the overload alarm): centre and half extents [m] "
+                        "(repeatable)")
+    parser.add_argument("--bus-listen", action="append", default=[], metavar="ENDPOINT",
+                        help="also open the cell bus (where the services meet; private by default) on "
+                        "ENDPOINT, for services of other hosts; clients use --listen (repeatable)")
+    add_router_options(parser)
+    add_health_arguments(parser)
+
+
+def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> UpSettings:
+    """Check what argparse cannot: arm ids, per-arm robots, duplicates (exit 2 if wrong)."""
+    arms: list[ArmSpec] = []
+    for item in args.arm or [DEFAULT_ARM]:
+        arm, sep, robot = item.partition(":")
+        robot = robot if sep else args.robot
+        try:
+            check_arm(arm)
+        except ArmIdError as exc:
+            parser.error(f"--arm {item}: {exc}")
+        if robot not in ROBOTS:
+            parser.error(f"--arm {item}: unknown robot {robot!r} (choose from {', '.join(ROBOTS)})")
+        if any(a.arm == arm for a in arms):
+            parser.error(f"--arm {item}: arm {arm!r} is given twice")
+        arms.append(ArmSpec(arm, robot))
+    return UpSettings(tuple(arms), router_settings(args, parser), args.log_level, tuple(args.obstacle),
+                      tuple(args.hidden_obstacle), args.demo, health_from_args(args), tuple(args.bus_listen))
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    settings = _settings(args, parser)
+    setup_logging(args.log_level)
+    signals = StopSignals()  # before any child exists: a signal must never orphan one
+    try:
+        return run_up(settings, signals)
+    except RouterError as exc:
+        parser.error(str(exc))
+
+
+COMMAND = Command(
+    "up", arguments=_arguments, run=_run,
+    help="run every service of every arm behind one Zenoh router",
+    description="Open a Zenoh router on the --listen endpoints (default "
+    f"{DEFAULT_LISTEN}) and run every service of every arm as a process of its own "
+    f"that joins it. Services: {', '.join(NAMES)}.")

@@ -28,12 +28,14 @@ here: every subscription is a channel that the page's one loop drains.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import errno
 import io
 import logging
 import socket
+import sys
 import threading
 import time
 from typing import Any, TextIO
@@ -53,8 +55,12 @@ from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.planner import MOTION_SETTINGS, PLANNED_PATH, PLANNER_PROGRESS
 from jara_arm.schema.types import Alarm
 from jara_arm.schema.wire_types import StructType
+from jara_arm.services.runtime.arguments import positive_float
 
-from .arm_state import format_state, read_state
+from ..command import USAGE_ERROR, Command, setup_logging
+from ..session import add_client_zenoh_arguments, arm_id, open_session
+from ..stop_signals import StopSignals
+from ..tools.arm_state import format_state, read_state
 from .scene import ArmScene, RobotGeometry
 
 log = logging.getLogger(__name__)
@@ -376,3 +382,49 @@ def run_view(session: zenoh.Session, settings: ViewSettings, stop: threading.Eve
         return 0
     finally:
         view.close()
+
+
+def _port(text: str) -> int:
+    """``--port``: a TCP port number."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a TCP port (1..65535)")
+    return port
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--arm", type=arm_id, action="append", default=[], metavar="ID",
+                        help="only this arm (repeatable; default: every arm that comes)")
+    parser.add_argument("--host", default=DEFAULT_HOST, metavar="ADDRESS",
+                        help=f"serve the page on this address (default: {DEFAULT_HOST}, this host only)")
+    parser.add_argument("--port", type=_port, default=DEFAULT_PORT, metavar="P",
+                        help=f"serve the page on this TCP port (default: {DEFAULT_PORT})")
+    parser.add_argument("--rate", type=positive_float, default=DEFAULT_RATE, metavar="HZ",
+                        help=f"page updates a second at most (default: {DEFAULT_RATE:g})")
+    add_client_zenoh_arguments(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """The page until SIGINT/SIGTERM; a page that cannot be served is a usage error (exit 2)."""
+    setup_logging("WARNING")
+    session = open_session(args, parser)
+    signals = StopSignals()
+    with session:
+        try:
+            return run_view(session, ViewSettings(tuple(dict.fromkeys(args.arm)), args.host, args.port, args.rate),
+                            signals.stop, sys.stdout)
+        except ViewError as exc:
+            print(f"{parser.prog}: {exc}", file=sys.stderr)
+            return USAGE_ERROR
+
+
+COMMAND = Command(
+    "view", arguments=_arguments, run=_run,
+    help="a web page with a live 3D view of every arm (read only)",
+    description="Serve a web page (viser; everything served by this process, nothing from the "
+    "internet) with a live 3D view of every arm on the network: links from the robot's URDF at "
+    "the servo's feedback, obstacles, Cartesian soft-limit box, base offset, control point and the "
+    "path of the running motion; state and alarms in the panel. It never moves an arm.")

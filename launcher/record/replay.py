@@ -17,7 +17,9 @@ stops if one appears.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import sys
 import threading
 import time
 from pathlib import Path
@@ -28,10 +30,15 @@ import zenoh
 from jara_arm.schema import codec
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import ArmKeys, encoding_of, key_info, parse_alive
+from jara_arm.services.runtime.arguments import positive_float
 from jara_arm.services.runtime.wire import label
 
+from ..command import USAGE_ERROR, Command, setup_logging
+from ..session import add_client_zenoh_arguments, arm_id, open_session
+from ..stop_signals import StopSignals
 from .progress import Progress
 from .recording import Info, RecordingError, read_messages
+from .recording import info as recording_info
 
 _LIVELINESS_TIMEOUT = 2.0  #: [s] to hear of the arms alive on the network
 _LATE = 0.0005  #: [s] a message this close to its time goes out without a sleep
@@ -132,3 +139,39 @@ def run_replay(session: zenoh.Session, path: Path, info: Info, settings: ReplayS
             w.undeclare()
     progress.done(f"replayed {sent} / {total} messages in {time.monotonic() - t0:.1f} s")
     return status
+
+
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", metavar="FILE.mcap", help="a recording of jara-arm record")
+    parser.add_argument("--speed", type=positive_float, default=1.0, metavar="X",
+                        help="X times the recorded pace (default: 1)")
+    parser.add_argument("--arm", action="append", type=arm_id, default=[], metavar="ID",
+                        help="an arm to replay (repeatable; default: every arm of the recording)")
+    add_client_zenoh_arguments(parser)
+
+
+def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    """The file read and the arms checked first (exit 2, nothing joined), then the network."""
+    setup_logging("WARNING")
+    path = Path(args.file)
+    settings = ReplaySettings(args.speed, tuple(dict.fromkeys(args.arm)))
+    try:
+        info = recording_info(path)
+        plan(info, settings)
+    except RecordingError as exc:
+        print(f"{parser.prog}: {exc}", file=sys.stderr)
+        return USAGE_ERROR
+    session = open_session(args, parser)
+    signals = StopSignals()
+    with session:
+        return run_replay(session, path, info, settings, signals.stop, sys.stderr, sys.stderr.isatty())
+
+
+COMMAND = Command(
+    "replay", arguments=_arguments, run=_run,
+    help="publish a recording again, in time, where no arm runs",
+    description="Publish the messages of an MCAP recording on their keys at their recorded pace (divided "
+    "by --speed), each in its key's encoding, for echo, plot, view or any subscriber. Refuses while "
+    "a recorded arm is alive on the network. Never replays what the services subscribe to "
+    "(Servo/posCmd, estop, Monitor/report); call traces go out as publications, "
+    "never as queries.")

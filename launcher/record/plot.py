@@ -5,7 +5,7 @@
 
 The samples are the arm's ``Servo/posFeedback`` (``TimedJointPos``), from the
 live system (subscribed for ``--seconds``, or until Ctrl-C) or from a recording
-of ``jara-arm record`` (``launcher/recording.py``). Their own timestamps ``tm``
+of ``jara-arm record`` (``launcher/record/recording.py``). Their own timestamps ``tm``
 give the time axis and the spacing of the differences (``traces.py``). The
 robot model comes from ``--robot``, else from the ``getManipInfo`` reply (asked
 live; in a recording if it holds one); the soft limits from
@@ -46,8 +46,8 @@ from jara_arm.schema.keys import ArmKeys
 from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.types import LimitValue
 
-from .arm_state import sample_encoding
-from .client import ArmClient, ClientError
+from ..tools.arm_state import sample_encoding
+from ..tools.client import ArmClient, ClientError
 from .plot_figures import DPI, Size, SizeError, draw_joints, draw_path
 from .traces import JointLimits, TraceError, cartesian_path, traces
 
@@ -122,7 +122,7 @@ class Feedback:
 
 
 class Recorded(Protocol):
-    """A message of a recording, as ``launcher/recording.py`` reads it."""
+    """A message of a recording, as ``launcher/record/recording.py`` reads it."""
 
     @property
     def key(self) -> str: ...

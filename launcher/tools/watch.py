@@ -8,6 +8,7 @@ are drained from the caller's own loop, never from a Zenoh callback.
 from __future__ import annotations
 
 import abc
+import argparse
 import logging
 import threading
 import time
@@ -24,7 +25,10 @@ from jara_arm.schema.keys import (ArmKeys, Service, any_arm_alarm, any_arm_log, 
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import Alarm
 
-from .router import say
+from ..command import Command, setup_logging
+from ..session import add_arm_filter, add_client_zenoh_arguments, open_session
+from ..stop_signals import StopSignals
+from ..up.router import say
 
 log = logging.getLogger("jara_arm.launcher")
 
@@ -174,3 +178,46 @@ def run_alarms(session: zenoh.Session, stop: threading.Event, arm: str | None) -
     finally:
         printer.close()
     return 0
+
+
+def _logs_arguments(parser: argparse.ArgumentParser) -> None:
+    add_arm_filter(parser)
+    parser.add_argument("--service", choices=[s.value for s in Service], metavar="NAME",
+                        help=f"only this service ({', '.join(s.value for s in Service)}; default: every one)")
+    parser.add_argument("--level", type=str.upper, default="DEBUG", choices=LOG_LEVELS,
+                        help="only records at this level or above (default: DEBUG, all)")
+    add_client_zenoh_arguments(parser)
+
+
+def _logs(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    setup_logging("WARNING")
+    session = open_session(args, parser)
+    signals = StopSignals()
+    with session:
+        return run_logs(session, signals.stop, args.arm, args.service, args.level)
+
+
+def _alarms_arguments(parser: argparse.ArgumentParser) -> None:
+    add_arm_filter(parser)
+    add_client_zenoh_arguments(parser)
+
+
+def _alarms(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    setup_logging("WARNING")
+    session = open_session(args, parser)
+    signals = StopSignals()
+    with session:
+        return run_alarms(session, signals.stop, args.arm)
+
+
+LOGS = Command(
+    "logs", arguments=_logs_arguments, run=_logs,
+    help="print the services' log records as they come",
+    description="Subscribe to JARA_ARM/<arm>/log/<service> from anywhere on the Zenoh "
+    "network and print each record as it arrives.")
+
+ALARMS = Command(
+    "alarms", arguments=_alarms_arguments, run=_alarms,
+    help="print the active alarms, then every alarm event as it comes",
+    description="Ask the alarm monitor for the active alarms and print them, then print "
+    "every event on JARA_ARM/<arm>/alarm (raised, cleared) as it arrives.")

@@ -1,0 +1,145 @@
+"""One arm's alarms as its servo acts on them: what it detected itself (latches), and the alarm monitor's list.
+
+The alarm monitor owns the arm's list (``schema/alarms.py``). What the servo
+detects itself (an e-stop put, a command that jumps or leaves the joint soft
+limits) it acts on in the same cycle (``loop.py``) and keeps as a *latch*,
+reported to the monitor on ``Monitor/report`` (again when its cause has gone,
+and again every ``REPORT_AGAIN`` until the monitor lists it). The servo follows
+the monitor's ``Monitor/alarms``: an alarm that appears there stops the arm (a
+FAULT also switches the servo off), and a latch is released once the monitor
+that listed it no longer does. While any latch or any listed alarm is active,
+position commands are dropped.
+
+:class:`AlarmState` is the bookkeeping of that: which alarms are active, and
+what the monitor is told. Stopping the arm, and whether a cause is still
+there, are the loop's: it passes them in. Loop thread only, as the rest of the
+loop's state.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from collections.abc import Callable
+
+from jara_arm.schema.alarms import ALARM_REPORT, AlarmList, AlarmReport, format_code, is_newer
+from jara_arm.schema.codes import AlarmCode, AlarmType
+from jara_arm.schema.keys import Service
+from jara_arm.schema.types import Alarm, Time
+from jara_arm.services.runtime.wire import Publication
+
+#: A latch the alarm monitor has not listed yet is reported again this often [s]
+#: (the monitor was down or restarted and lost it).
+REPORT_AGAIN = 0.5
+
+
+@dataclasses.dataclass
+class Latch:
+    """An alarm the servo detected itself; it keeps the arm stopped until the monitor clears it."""
+
+    alarm: Alarm
+    present: bool  # the cause was present when last reported
+    acked: Time | None = None  # ``started`` of the monitor whose list held it; None: not listed yet
+    reported_at: float = -float("inf")  # [s] monotonic time of the last report
+
+
+class AlarmState:
+    """The active alarms of one arm's servo (module docstring)."""
+
+    def __init__(self, report_pub: Publication, log: logging.LoggerAdapter[logging.Logger],
+                 cause_present: Callable[[int], bool]) -> None:
+        """``report_pub``: ``Monitor/report``; ``cause_present(code)``: whether the cause of the servo's own
+        alarm ``code`` is still there (the loop's state says)."""
+        self.latches: dict[int, Latch] = {}  # by code: what the servo detected itself
+        self.monitor_alarms: tuple[Alarm, ...] = ()  # the alarm monitor's newest list
+        self._monitor_list: AlarmList | None = None
+        self._report_pub = report_pub
+        self._log = log
+        self._cause_present = cause_present
+
+    def latch(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
+        """Latch the servo's own alarm ``code`` (the first of a code stands) and report it to the monitor."""
+        if int(code) not in self.latches:
+            latch = Latch(Alarm(int(code), kind, description), self._cause_present(int(code)))
+            self.latches[int(code)] = latch
+            self._log.error("alarm %s %s: %s", format_code(code), kind.value, description)
+            self._report(latch)
+
+    def not_completed(self, motions: list[int], why: str) -> None:
+        """The WARNING that accepted motions were discarded before their end (0x420)."""
+        description = f"motions {motions} discarded before their end: {why}"
+        code = int(AlarmCode.MOTION_NOT_COMPLETED)
+        if code in self.latches:  # one latch per code: the first one stands until cleared
+            self._log.warning("%s (alarm %s already active)", description, format_code(code))
+            return
+        latch = Latch(Alarm(code, AlarmType.WARNING, description), False)
+        self.latches[code] = latch
+        self._log.warning("alarm %s %s: %s", format_code(code), AlarmType.WARNING.value, description)
+        self._report(latch)
+
+    def _report(self, latch: Latch) -> None:
+        report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value)
+        latch.reported_at = time.monotonic()
+        try:
+            self._report_pub.put_message(ALARM_REPORT, report)
+        except Exception as exc:  # a report that cannot be sent is sent again later
+            self._log.warning("could not report alarm %s to the monitor: %s", format_code(latch.alarm.code), exc)
+
+    def report_latches(self) -> None:
+        """Report every latch whose cause came or went, and again those not listed yet."""
+        now = time.monotonic()
+        for code, latch in list(self.latches.items()):
+            present = self._cause_present(code)
+            if present != latch.present or (latch.acked is None and now - latch.reported_at >= REPORT_AGAIN):
+                latch.present = present
+                self._report(latch)
+
+    def held_list(self) -> AlarmList | None:
+        """The monitor's newest list less what was cleared without it: what this servo acts on."""
+        if self._monitor_list is None:
+            return None
+        return dataclasses.replace(self._monitor_list, alarms=self.monitor_alarms)
+
+    def adopt(self, alarms: AlarmList, stop: Callable[[Alarm], None]) -> None:
+        """Follow the monitor's list: ``stop`` for each alarm new there (not latched here), release the latches
+        it cleared."""
+        if not is_newer(alarms, self._monitor_list):
+            return  # published before the one already adopted
+        previous = self._monitor_list
+        self._monitor_list = alarms
+        listed = {a.code for a in alarms.alarms}
+        for code, latch in list(self.latches.items()):
+            if code in listed:
+                latch.acked = alarms.started
+            elif latch.acked == alarms.started:
+                del self.latches[code]
+                self._log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
+            elif previous is not None and alarms.started != previous.started:
+                latch.acked = None  # a new monitor: tell it at once
+                latch.reported_at = -float("inf")
+        before = {a.code for a in self.monitor_alarms}
+        self.monitor_alarms = alarms.alarms
+        for alarm in alarms.alarms:
+            if alarm.code not in before and alarm.code not in self.latches:  # a stop may have latched 0x420
+                self._log.warning("alarm %s %s from the alarm monitor: stopping the arm (%s)",
+                                  format_code(alarm.code), alarm.type.value, alarm.description)
+                stop(alarm)
+
+    def clear(self) -> tuple[list[Alarm], list[Alarm]]:
+        """Without an alarm monitor: clear the latches whose cause has gone, forget the monitor's list.
+
+        Returns (cleared, still active).
+        """
+        cleared, kept = list(self.monitor_alarms), []
+        self.monitor_alarms = ()
+        for code, latch in list(self.latches.items()):
+            if self._cause_present(code):
+                kept.append(latch.alarm)
+            else:
+                cleared.append(self.latches.pop(code).alarm)
+                self._log.info("alarm %s cleared", format_code(code))
+        return cleared, kept
+
+
+__all__ = ["AlarmState", "Latch", "REPORT_AGAIN"]
