@@ -289,7 +289,7 @@ class TestIiwa:
                 p = rig.points(rec.fb)
                 t = rec.fb_tm
                 win = np.arange(t[0], t[-1], 0.01)
-                idx = np.searchsorted(t, win)
+                idx = np.unique(np.searchsorted(t, win))  # a gap longer than a window: one window
                 v = np.linalg.norm(np.diff(p[idx], axis=0), axis=1) / np.diff(t[idx])
                 reached = np.maximum.accumulate(v)
                 dips = [i for i in np.flatnonzero((v < 0.5 * reached) & (reached > 0.02))
