@@ -1,9 +1,9 @@
 """The internal contract between the command service and the planner service.
 
 The command service owns the state machine and the settings: it checks state
-(servo on, alarms, speed ratio, queue capacity) and hands each
+(servo on, alarms, speed ratio, a full queue as last heard) and hands each
 accepted-by-state motion to the planner with a snapshot of the settings. The
-planner owns the motion queue and the pause: it gives each motion its id,
+planner owns the motion queue, its capacity and the pause: it gives each motion its id,
 checks geometry (limits, reachability, speed, arcs), plans it from the end of
 the previous queued motion, and hands it to the servo's interpolator
 (``schema/motion.py``), which runs the motions in order.
@@ -110,9 +110,15 @@ class PlannerProgress:
     started: Time = wire(w.TIME)  # when this planner process started: a restarted planner is newer
     seq: int = wire(w.ULONG)  # grows with every change of the members above but ``tm``
     override: float = wire(w.DOUBLE, "%", "the servo's speed override (Ext/setSpeedOverride)", default=100.0)
+    capacity: int = wire(w.ULONG, "motions", "the queue holds at most this many; the next motion is refused "
+                         "FULL_MOTION_QUEUE_ERR (planner --queue-capacity)", default=0)
 
 
 PLANNER_PROGRESS = struct(PlannerProgress, strict=False, doc="Internal: planner -> everyone, Planner/progress.")
+
+
+#: Motions the planner's queue holds by default (DECISIONS.md "Motion commands"; planner ``--queue-capacity``).
+QUEUE_CAPACITY = 32
 
 
 def accepted_comment(motion: int) -> str:

@@ -19,16 +19,16 @@ from .support import wait_until
 N = robot("iiwa").axis_num
 
 
-def progress(queued=(), paused=False, seq=1, started=100.0) -> PlannerProgress:
+def progress(queued=(), paused=False, seq=1, started=100.0, capacity=3) -> PlannerProgress:
     return PlannerProgress(Time.now(), queued[0] if queued else 0, tuple(queued), 0, 0, paused, bool(queued),
-                           Time.from_seconds(started), seq)
+                           Time.from_seconds(started), seq, capacity=capacity)
 
 
 def test_the_newest_planner_message_wins_by_its_number():
     from jara_arm.services.command.state import StateTracker
 
     published: list[tuple[int, int]] = []
-    tracker = StateTracker(3, publish=lambda view: published.append((view.bits, view.queue_length)))
+    tracker = StateTracker(publish=lambda view: published.append((view.bits, view.queue_length)))
     tracker.on_progress(progress((1, 2, 3), seq=5))
     assert tracker.view().full and tracker.view().queue_length == 3
     tracker.on_progress(progress((1,), seq=4))  # older: on its way before the last
@@ -45,15 +45,17 @@ def test_the_newest_planner_message_wins_by_its_number():
     tracker.on_progress(progress((7,), seq=2, started=200.0))  # still on its way from the gone one
     assert tracker.view().queue_length == 0
     tracker.on_progress(progress((), seq=1, started=300.0))
+    tracker.on_progress(progress((4, 5), seq=2, started=300.0, capacity=2))  # the planner's capacity, not ours
+    assert tracker.view().full and tracker.view().capacity == 2
     assert published == [(StateBit.MOVING | StateBit.BUFFER_FULL, 3), (StateBit.MOVING | StateBit.PAUSED, 2),
-                         (StateBit.MOVING, 1), (0, 0)]
+                         (StateBit.MOVING, 1), (0, 0), (StateBit.MOVING | StateBit.BUFFER_FULL, 2)]
 
 
 def test_the_state_is_published_only_when_it_changes():
     from jara_arm.services.command.state import StateTracker
 
     published: list[int] = []
-    tracker = StateTracker(4, publish=lambda view: published.append(view.bits))
+    tracker = StateTracker(publish=lambda view: published.append(view.bits))
     z = (0.0,) * N
     status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
     for _ in range(100):
@@ -70,7 +72,7 @@ def test_a_stale_view_first_takes_in_what_arrived():
     "no status" (``StateTracker.catch_up``); with nothing waiting it still says so."""
     from jara_arm.services.command.state import StateTracker
 
-    tracker = StateTracker(4, publish=lambda view: None, stale_after=0.05)
+    tracker = StateTracker(publish=lambda view: None, stale_after=0.05)
     z = (0.0,) * N
     status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
     tracker.on_status(status)
@@ -89,7 +91,7 @@ def test_a_motion_request_listens_for_a_status_before_it_says_there_is_none():
     silent is still "not heard", after ``listen``, not before."""
     from jara_arm.services.command.state import StateTracker
 
-    tracker = StateTracker(4, publish=lambda view: None, stale_after=0.05)
+    tracker = StateTracker(publish=lambda view: None, stale_after=0.05)
     z = (0.0,) * N
     status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z)
     drains: list[float] = []

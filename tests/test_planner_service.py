@@ -37,6 +37,7 @@ DT = 1e-3
 EXECUTED_TOL = 0.5e-3  # [m] executed path (FK of feedback) vs the ideal path
 PLANNED_TOL = 1e-6  # [m] commanded path (FK of posCmd) vs the ideal path
 HOLD_WINDOW = 0.2  # [s] of the servo's own time in which a paused arm must not move (an observation window)
+CAPACITY = 4  # [motions] the iiwa rig's planner queue (planner --queue-capacity)
 
 
 def cycles(duration: float) -> int:
@@ -46,7 +47,8 @@ def cycles(duration: float) -> int:
 
 @pytest.fixture(scope="class")
 def iiwa_rig() -> Iterator[PlannerRig]:
-    yield from start_rig("iiwa")
+    # The queue's capacity is the planner's: 4 here, the most any test of the class queues.
+    yield from start_rig("iiwa", planner_args=("--queue-capacity", str(CAPACITY)))
 
 
 @pytest.fixture
@@ -305,7 +307,11 @@ class TestIiwa:
         a = T0[:3, 3]
         b = a + [0.0, -0.25, 0.0]
         first = rig.plan_ok(OP.moveLinearCartesianAbs, {"carPoint": car(pose(b, T0[:3, :3]))})
-        more = [rig.plan_ok(OP.movePTPJointRel, {"jointPoints": [0.1] + [0.0] * 6}) for _ in range(2)]
+        more = [rig.plan_ok(OP.movePTPJointRel, {"jointPoints": [0.1] + [0.0] * 6}) for _ in range(CAPACITY - 1)]
+        # The planner owns the queue and its capacity: it refuses the motion that does not fit, and says its capacity.
+        full = rig.plan(OP.movePTPJointRel, {"jointPoints": [0.1] + [0.0] * 6})
+        assert full.id == ReturnCode.FULL_MOTION_QUEUE_ERR and f"{CAPACITY} of {CAPACITY}" in full.comment, full
+        assert rig.progress().capacity == CAPACITY
         rig.wait_progress("motion running", lambda p: p.running == first.motion)
         rig.wait_along(a, b, 0.25)
         answer = rig.control(ControlAction.STOP)

@@ -13,7 +13,7 @@ from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.keys import Service
 from jara_arm.schema.messages import STATE_MESSAGE, StateMessage
 from jara_arm.schema.operations import COMMON, EXT, MIDDLE, Interface
-from jara_arm.services.runtime.arguments import positive_float, positive_int
+from jara_arm.services.runtime.arguments import positive_float
 from jara_arm.services.runtime.monitor_link import MonitorLink
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 from jara_arm.services.runtime.wire import Publication
@@ -27,7 +27,7 @@ from .links import CONTROL_TIMEOUT, PLAN_TIMEOUT, SERVO_TIMEOUT, PlannerLink, Se
 from .middle import CommandMiddle
 from .settings import Settings
 from .settings_publisher import SETTINGS_PERIOD, SettingsPublisher
-from .state import DEFAULT_CAPACITY, StateTracker, StateView
+from .state import StateTracker, StateView
 from .watch import Watcher
 
 log = logging.getLogger("jara_arm.command")
@@ -57,9 +57,6 @@ class CommandService(ArmService):
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--queue-capacity", type=positive_int, default=DEFAULT_CAPACITY, metavar="N",
-                            help=f"motions the queue holds before FULL_MOTION_QUEUE_ERR "
-                            f"(default: {DEFAULT_CAPACITY})")
         parser.add_argument("--servo-timeout", type=positive_float, default=SERVO_TIMEOUT, metavar="S",
                             help=f"time the servo has to answer a query [s] (default: {SERVO_TIMEOUT:g})")
         parser.add_argument("--plan-timeout", type=positive_float, default=PLAN_TIMEOUT, metavar="S",
@@ -68,7 +65,7 @@ class CommandService(ArmService):
     def start(self, ctx: ServiceContext) -> None:
         session, keys, robot, opts = ctx.session, ctx.keys, ctx.model, ctx.options
         state_pub = ctx.enter(Publication(session, keys.state))
-        tracker = StateTracker(opts.queue_capacity, lambda v: state_pub.put(state_payload(v, state_pub.encoding)))
+        tracker = StateTracker(lambda v: state_pub.put(state_payload(v, state_pub.encoding)))
         watcher = Watcher(session, keys, tracker, ctx.heartbeat().pulse("the state watcher"))
         watcher.start()
         ctx.closing(watcher.stop)
@@ -90,8 +87,8 @@ class CommandService(ArmService):
         alarms = core.monitor.alarm_list()  # a restarted command knows the active alarms at once
         if alarms is not None:
             tracker.on_alarms(alarms)
-        ctx.up(f"command up: arm {keys.arm}, robot {robot.name} ({robot.axis_num} axes), queue capacity "
-               f"{opts.queue_capacity}, reach {settings.reach:.3f} m")
+        ctx.up(f"command up: arm {keys.arm}, robot {robot.name} ({robot.axis_num} axes), "
+               f"reach {settings.reach:.3f} m")
 
 
 

@@ -10,7 +10,7 @@ The command owns none of the facts it reports; it reads each from its owner:
 * 0x04 alarm: the alarm monitor's list (``Monitor/alarms``, while the monitor
   is up) is not empty, or the servo reports an active alarm (its own latches
   and the monitor's list, which it keeps while the monitor restarts).
-* 0x08 queue full: the planner's queue holds ``capacity`` motions.
+* 0x08 queue full: the planner's queue holds its ``capacity`` motions (both in its progress).
 * 0x10 paused: the planner says so.
 
 The planner's queue and pause (and the servo's speed override, which
@@ -34,7 +34,7 @@ from jara_arm.schema import planner as planner_progress
 from jara_arm.schema.alarms import AlarmList
 from jara_arm.schema.codes import AlarmType, StateBit
 from jara_arm.schema.messages import ServoStatus
-from jara_arm.schema.planner import PlannerProgress
+from jara_arm.schema.planner import QUEUE_CAPACITY, PlannerProgress
 from jara_arm.schema.types import LimitValue
 
 log = logging.getLogger(__name__)
@@ -42,9 +42,6 @@ log = logging.getLogger(__name__)
 #: Without a ``Servo/status`` for this long the servo counts as gone [s]
 #: (it publishes every 10 cycles, i.e. at 100 Hz with a 1 ms cycle).
 STATUS_STALE_AFTER = 1.0
-#: Default capacity of the planner's queue as the command enforces it [motions]
-#: (DECISIONS.md "Motion commands").
-DEFAULT_CAPACITY = 32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,10 +73,7 @@ Publish = Callable[[StateView], None]
 class StateTracker:
     """Thread-safe state of the command service; publishes on every change."""
 
-    def __init__(self, capacity: int, publish: Publish, stale_after: float = STATUS_STALE_AFTER) -> None:
-        if capacity < 1:
-            raise ValueError(f"queue capacity must be at least 1, got {capacity}")
-        self.capacity = capacity
+    def __init__(self, publish: Publish, stale_after: float = STATUS_STALE_AFTER) -> None:
         self._publish = publish
         self._stale_after = stale_after
         self._cond = threading.Condition()
@@ -117,6 +111,8 @@ class StateTracker:
         st = self._status if heard else None
         progress = self._progress
         queued = len(progress.queued) if progress is not None else 0
+        # The planner's (it owns the queue and refuses the motion that does not fit); its default until heard.
+        capacity = progress.capacity if progress is not None and progress.capacity > 0 else QUEUE_CAPACITY
         # A FAULT switches the servo off (SPEC.md §4): with one listed, no servo-on bit, even before the
         # servo's own status says so (what getActiveAlarm answered and getState must agree).
         fault = bool(self._alarms and any(a.type is AlarmType.FAULT for a in self._alarms.alarms))
@@ -125,10 +121,10 @@ class StateTracker:
             servo_on=bool(st and st.servoOn) and not fault,
             moving=bool(st and st.moving) or queued > 0,
             alarm=bool(st and st.alarm) or bool(self._alarms and self._alarms.alarms),
-            full=queued >= self.capacity,
+            full=queued >= capacity,
             paused=bool(progress and progress.paused),
             queue_length=queued,
-            capacity=self.capacity,
+            capacity=capacity,
         )
 
     def measured_joints(self) -> tuple[tuple[float, ...], float] | None:

@@ -44,7 +44,7 @@ from jara_arm.schema.motion import (
     TrajectoryRefusal,
     is_newer,
 )
-from jara_arm.schema.planner import ControlAction, PlannerProgress
+from jara_arm.schema.planner import QUEUE_CAPACITY, ControlAction, PlannerProgress
 from jara_arm.schema.types import Time
 from jara_arm.services.runtime.heartbeat import Pulse
 from jara_arm.services.runtime.threads import LoopThread
@@ -78,8 +78,11 @@ class Handover:
     def __init__(self, dof: int, period: float, ask_trajectory: AskTrajectory, ask_control: AskControl,
                  publish_progress: Callable[[PlannerProgress], None],
                  poll_status: Callable[[], ServoStatus | None], poll_motion: Callable[[], MotionProgress | None],
-                 pulse: Pulse | None = None) -> None:
+                 pulse: Pulse | None = None, capacity: int = QUEUE_CAPACITY) -> None:
+        if capacity < 1:
+            raise ValueError(f"queue capacity must be at least 1, got {capacity}")
         self.dof, self.period = dof, period
+        self.capacity = capacity  # [motions] accepted, not finished (the running one included)
         self._ask_trajectory, self._ask_control = ask_trajectory, ask_control
         self._publish_progress = publish_progress
         self._poll_status, self._poll_motion = poll_status, poll_motion
@@ -129,6 +132,11 @@ class Handover:
                 raise PlanRefused(ReturnCode.NOT_SV_ON_ERR, "the servo is off")
             if st.alarm:
                 raise PlanRefused(ReturnCode.STATUS_ERR, "the servo has an active alarm")
+            # Checked here, by the queue's owner, one request at a time: two clients cannot both take the last place.
+            queued = self._queued()
+            if len(queued) >= self.capacity:
+                raise PlanRefused(ReturnCode.FULL_MOTION_QUEUE_ERR,
+                                  f"the motion queue holds {len(queued)} of {self.capacity} motions")
             # Slowing down for a stop: where the arm ends is known once it has.
             if not self._news.wait_for(lambda: self._motion is not None and len(self._motion.tail) == self.dof,
                                        STOP_WAIT):
@@ -311,23 +319,27 @@ class Handover:
                 log.exception("progress relay iteration failed")
             stop.wait(WATCHER_POLL)
 
+    def _queued(self) -> tuple[int, ...]:
+        """The motions accepted and not finished, the running one first (lock held): a head is not accepted yet."""
+        m = self._motion
+        return () if m is None else tuple(i for i in m.queued if i != m.head)
+
     def _progress(self, now: float) -> PlannerProgress:
         """The servo's progress as the planner's, numbered: ``seq`` grows when anything but the time
         changed (lock held)."""
         m = self._motion
+        queued = self._queued()
         if m is None:
-            queued: tuple[int, ...] = ()
             running = done = discarded = 0
             paused = moving = False
             override = 100.0
         else:
-            queued = tuple(i for i in m.queued if i != m.head)  # a head is not accepted yet
             running = m.running if m.moving and not m.stopping and m.running in queued else 0
             done, discarded, paused, moving, override = m.lastDone, m.lastDiscarded, m.paused, m.moving, m.override
         last = self._snapshot
         seq = last.seq if last is not None else 0
         progress = PlannerProgress(Time.from_seconds(now), running, queued, done, discarded, paused, moving,
-                                   self._started, seq, override)
+                                   self._started, seq, override, self.capacity)
         if last is None or dataclasses.replace(progress, tm=last.tm) != last:
             progress = dataclasses.replace(progress, seq=seq + 1)
         self._snapshot = progress

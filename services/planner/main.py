@@ -55,6 +55,7 @@ from jara_arm.schema.planner import (
     PLAN_REPLY,
     PLANNED_PATH,
     PLANNER_PROGRESS,
+    QUEUE_CAPACITY,
     ControlAction,
     ControlReply,
     PlannedPath,
@@ -62,7 +63,7 @@ from jara_arm.schema.planner import (
     PlanReply,
     accepted_comment,
 )
-from jara_arm.services.runtime.arguments import non_negative_float, obstacle_argument
+from jara_arm.services.runtime.arguments import non_negative_float, obstacle_argument, positive_int
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 from jara_arm.services.runtime.ask import Asker, Silence
 from jara_arm.services.runtime.timing import CONTROL_TIMEOUT, EARLY_START, SERVO_TIMEOUT
@@ -84,7 +85,7 @@ _REPLAN = 3
 class PlannerService:
     """``Planner/plan`` and ``Planner/control`` queryables, and the hand-over to the servo."""
 
-    def __init__(self, ctx: ServiceContext, planner: PlanningProcess, heads: MotionPlanner) -> None:
+    def __init__(self, ctx: ServiceContext, planner: PlanningProcess, heads: MotionPlanner, capacity: int) -> None:
         session, keys = ctx.session, ctx.keys
         self.model = model = ctx.model
         self.planner = planner
@@ -99,7 +100,7 @@ class PlannerService:
         ctx.closing(self._control.close)
         self.handover = Handover(model.dof, model.cmd_cycle, self._ask_trajectory, self._ask_control,
                                  self._put_progress, self._poll_status, self._poll_motion,
-                                 pulse=ctx.heartbeat().pulse("the progress relay"))
+                                 pulse=ctx.heartbeat().pulse("the progress relay"), capacity=capacity)
         self.handover.start()
         ctx.closing(self.handover.close)
         ctx.watch("the progress relay thread", lambda: self.handover.alive)
@@ -273,6 +274,9 @@ class PlannerProgram(ArmService):
                             help="how much of a LIN / CIRC from rest may run while the rest of it is still "
                             "planned [ms of motion]; a motion refused after it started has moved the arm "
                             f"along its checked first samples, 0: never (default: {EARLY_START * 1e3:.0f})")
+        parser.add_argument("--queue-capacity", type=positive_int, default=QUEUE_CAPACITY, metavar="N",
+                            help="motions the queue holds (the running one included) before the next is refused "
+                            f"FULL_MOTION_QUEUE_ERR (default: {QUEUE_CAPACITY})")
         parser.add_argument("--collision-margin", type=non_negative_float, default=DEFAULT_MARGIN, metavar="M",
                             help="clearance every link keeps from the obstacles [m]; links only must not touch "
                             f"each other (default: {DEFAULT_MARGIN})")
@@ -286,10 +290,11 @@ class PlannerProgram(ArmService):
 
     def start(self, ctx: ServiceContext) -> None:
         assert self._planner is not None and self._heads is not None  # before_session() ran
-        PlannerService(ctx, self._planner, self._heads)
+        PlannerService(ctx, self._planner, self._heads, ctx.options.queue_capacity)
         m = ctx.model
         ctx.up(f"planner up: arm {ctx.keys.arm}, robot {m.name} ({m.axis_num} axes"
-               f"{' + gripper' if m.has_gripper else ''}), early start {ctx.options.early_start_ms:g} ms")
+               f"{' + gripper' if m.has_gripper else ''}), early start {ctx.options.early_start_ms:g} ms, "
+               f"queue capacity {ctx.options.queue_capacity}")
 
     def after_session(self) -> None:
         if self._planner is not None:
