@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import logging
 
-from jara_arm.schema.alarms import MONITOR_OPERATIONS
+from jara_arm.schema import codec
+from jara_arm.schema.alarms import ALARM_LIST, MONITOR_OPERATIONS
 from jara_arm.schema.codec import Reply
-from jara_arm.schema.keys import Service
+from jara_arm.schema.keys import Service, encoding_of
 from jara_arm.services.runtime.monitor_link import clear_reply, servo_copy
 from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.rpc import ok
@@ -56,6 +57,10 @@ class AlarmMonitorService(ArmService):
         ctx.closing(monitor.stop)
         ctx.watch("the alarm monitor thread", lambda: monitor.alive)
         ctx.serve(ctx.keys.monitor_common(), MONITOR_OPERATIONS, MonitorCommon(monitor), "monitor-rpc")
+        # Made on the monitor's thread, after the reports that came before the query (Monitor.call).
+        ctx.serve_key(ctx.keys.monitor_alarms, lambda key, _p, encoding: (
+            key, codec.encode_message(ALARM_LIST, monitor.call(monitor.alarm_list), encoding)), "monitor-alarms",
+            encoding_of(ctx.keys.monitor_alarms))
         # Every thread of the process (Zenoh's that bring the samples in, too) at the monitor's
         # priority: an alarm must not wait for the planner's or anyone's normal-priority work.
         realtime_process(ctx.realtime_priority, "alarm monitor")

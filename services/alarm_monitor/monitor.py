@@ -43,7 +43,7 @@ from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.threads import LoopThread
 from jara_arm.services.runtime.timing import MONITOR_POLL, SAME_HOST, Health
-from jara_arm.services.runtime.wire import Publication, decode_sample, reply_message
+from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .book import AlarmBook
 from .detectors import (
@@ -109,7 +109,6 @@ class Monitor:
         self._settings_sub = enter(session.declare_subscriber(keys.command_settings, ring(1)))
         self._event_pub = enter(Publication(session, keys.alarm))
         self._list_pub = enter(Publication(session, keys.monitor_alarms))
-        self._list_q = enter(session.declare_queryable(keys.monitor_alarms, fifo(64)))
         self._reactions = Reactions(session, keys)
         self._calls: collections.deque[tuple[Callable[[], object], concurrent.futures.Future]] = \
             collections.deque()
@@ -206,11 +205,6 @@ class Monitor:
                 fut.set_result(fn())
             except Exception as exc:
                 fut.set_exception(exc)
-        while (query := self._list_q.try_recv()) is not None:
-            try:
-                reply_message(query, self.keys.monitor_alarms, ALARM_LIST, self.alarm_list())
-            finally:
-                query.drop()
         if self._dirty or now - self._list_at >= LIST_PERIOD:
             self._list_pub.put_message(ALARM_LIST, self.alarm_list())
             self._dirty = False

@@ -8,7 +8,7 @@ interfaces for long).
 
 The servo keeps the newest list it adopted (it must: those alarms keep the
 arm stopped while there is no monitor) and answers it on ``Monitor/copy``
-(:class:`AlarmListCopy`): a monitor that restarts takes the active alarms over
+(:func:`alarm_copy_answer`): a monitor that restarts takes the active alarms over
 from there (:func:`servo_copy`) instead of starting with an empty list while
 the arm is still stopped by them.
 """
@@ -22,17 +22,16 @@ import zenoh
 
 from jara_arm.schema import codec
 from jara_arm.schema.alarms import ALARM_LIST, MONITOR_OPERATIONS, AlarmList, format_code
-from jara_arm.schema.codec import Reply
+from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import Refusal, WireError
 from jara_arm.schema.keys import ArmKeys
-from jara_arm.schema.types import Alarm
+from jara_arm.schema.types import Alarm, Time
 
 from .ask import Answer, Asker, Silence
-from .entities import Entities
+from .rpc import Answer as QueryAnswer
 from .rpc import ok
 from .timing import MONITOR_TIMEOUT
-from .wire import reply_message
 
 log = logging.getLogger(__name__)
 
@@ -95,36 +94,24 @@ class MonitorLink:
             return None
 
 
-class AlarmListCopy:
-    """``Monitor/copy``: answers the newest ``AlarmList`` the servo adopted.
+#: ``Monitor/copy``'s answer while the servo has adopted no list: no monitor heard, no alarm to take over.
+NO_LIST = AlarmList(Time(0, 0), Time(0, 0), ())
 
-    Zenoh only queues the queries; the thread that holds the list answers them
-    with :meth:`answer` on its own turns (the servo loop).
-    """
 
-    def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
-        self._key = keys.alarm_copy
-        self._entities = Entities()
-        self._queryable = self._entities.enter_context(
-            session.declare_queryable(self._key, zenoh.handlers.FifoChannel(16)))
+def alarm_copy_answer(current: Callable[[], AlarmList | None]) -> QueryAnswer:
+    """``Monitor/copy``'s answer for the servo's ``QueryServer``: ``current()``, the newest list the servo
+    adopted (:data:`NO_LIST` before the first), in the request's encoding. ``current`` runs on the thread that
+    holds the list (the servo loop's ``call``), which may be held up; the query worker waits for it, not the loop
+    for the query."""
 
-    def answer(self, current: Callable[[], AlarmList | None]) -> None:
-        """Reply ``current()`` to every pending query (None: no list adopted yet, no reply)."""
-        while (query := self._queryable.try_recv()) is not None:
-            try:
-                if (alarms := current()) is not None:
-                    reply_message(query, self._key, ALARM_LIST, alarms)
-            except zenoh.ZError as exc:
-                log.warning("could not answer %s: %s", self._key, exc)
-            finally:
-                query.drop()
+    def answer(key: str, _payload: bytes, encoding: Encoding) -> tuple[str, bytes]:
+        return key, codec.encode_message(ALARM_LIST, current() or NO_LIST, encoding)
 
-    def close(self) -> None:
-        self._entities.close()
+    return answer
 
 
 def servo_copy(session: zenoh.Session, keys: ArmKeys, timeout: float = MONITOR_TIMEOUT) -> AlarmList | None:
-    """The list the servo holds (see :class:`AlarmListCopy`); None if it holds none or does not answer."""
+    """The list the servo holds (see :func:`alarm_copy_answer`); None if it does not answer."""
     asker = Asker(session, keys.alarm_copy, timeout)
     try:
         got = asker.ask(b"")

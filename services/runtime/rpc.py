@@ -84,8 +84,10 @@ class QueryServer:
     (``drop``) at once, not at garbage collection.
     """
 
-    def __init__(self, session: zenoh.Session, key: str, answer: Answer, name: str) -> None:
+    def __init__(self, session: zenoh.Session, key: str, answer: Answer, name: str,
+                 encoding: Encoding | None = None) -> None:
         self._answer = answer
+        self._encoding = encoding  # the key's own, if it has one; else the request's (keys.KeyEncoding.AS_REQUEST)
         self._entities = Entities()
         self._queryable = self._entities.enter_context(
             session.declare_queryable(key, zenoh.handlers.FifoChannel(_CHANNEL_CAPACITY)))
@@ -107,7 +109,7 @@ class QueryServer:
                     continue
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 # JSON text is JSON whatever its label: generic tools send it unlabelled
-                encoding = Encoding.of_request(payload, query.encoding)
+                encoding = Encoding.of_request(payload, query.encoding) if self._encoding is None else self._encoding
                 key, body = self._answer(str(query.key_expr), payload, encoding)
                 reply(query, key, body, encoding)
                 self._replied(key, payload, encoding, body)

@@ -45,6 +45,7 @@ from typing import Any, ClassVar, TypeVar
 import zenoh
 
 from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, RobotModel, robot
+from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys, Service, check_arm
 from jara_arm.schema.operations import Operation
@@ -118,9 +119,10 @@ class ServiceContext:
         self._add_server(server)
         return server
 
-    def serve_key(self, key: str, answer: Answer, name: str) -> QueryServer:
-        """Answer the queries on ``key`` with ``answer`` (an internal endpoint, e.g. ``Planner/plan``)."""
-        server = QueryServer(self.session, key, answer, name)
+    def serve_key(self, key: str, answer: Answer, name: str, encoding: Encoding | None = None) -> QueryServer:
+        """Answer the queries on ``key`` with ``answer`` (an internal endpoint, e.g. ``Planner/plan``), in
+        ``encoding`` (the key's own, ``keys.encoding_of``) or, if None, in the request's."""
+        server = QueryServer(self.session, key, answer, name, encoding)
         self._add_server(server)
         return server
 

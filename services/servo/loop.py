@@ -54,7 +54,6 @@ from jara_arm.schema.motion import MOTION_PROGRESS, MotionAction, MotionProgress
 from jara_arm.schema.types import Alarm, LimitValue, Time
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
-from jara_arm.services.runtime.monitor_link import AlarmListCopy
 from jara_arm.services.runtime.timing import (
     FEEDBACK_BLOCK_CYCLES,
     HEALTH_EVERY,
@@ -153,7 +152,6 @@ class ServoLoop:
         self._cmd_sub = enter(session.declare_subscriber(keys.pos_cmd, zenoh.handlers.FifoChannel(1 << 16)))
         self._estop_sub = enter(session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64)))
         self._alarms_sub = enter(session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256)))
-        self._alarm_copy = AlarmListCopy(session, keys)
         self._monitor = MonitorWatch(session, keys, health)  # nobody else can watch the watcher
         # The servo's own alarms and the monitor's list it follows; Monitor/report carries the former.
         self.alarm_state = AlarmState(enter(Publication(session, keys.monitor_report)), self._log, self._cause_present)
@@ -190,7 +188,6 @@ class ServoLoop:
     def close(self) -> None:
         """Undeclare everything; call it once the clock has stopped."""
         self.interp.release()
-        self._alarm_copy.close()
         self._monitor.close()
         self._entities.close()  # in reverse: the matching listener before its publisher
         self.world.close()
@@ -277,7 +274,6 @@ class ServoLoop:
                 self._log.error("ignored a malformed alarm list from the monitor: %s", exc)
         self._watch_k += 1  # not k: it stands still while a late client stream is waited for
         if self._watch_k % WATCH_EVERY == self._watch_phase:
-            self._alarm_copy.answer(self.alarm_state.held_list)
             self._watch_monitor()
         while self._calls:
             fn, fut = self._calls.popleft()

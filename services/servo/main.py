@@ -16,12 +16,12 @@ from jara_arm.schema import codec
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, Refusal, WireError
-from jara_arm.schema.keys import ArmKeys, Service, check_arm
+from jara_arm.schema.keys import ArmKeys, Service, check_arm, encoding_of
 from jara_arm.schema.motion import MOTION_CONTROL, MOTION_REPLY, TRAJECTORY, MotionAction, MotionReply
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.arguments import obstacle_argument
-from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
+from jara_arm.services.runtime.monitor_link import MonitorLink, alarm_copy_answer, clear_reply
 from jara_arm.services.runtime.rpc import ok
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 
@@ -200,6 +200,9 @@ class ServoService(ArmService):
             world = WorldPublisher(ctx.session, keys, servo_world(loop.model, loop.world.obstacles))
             ctx.closing(world.close)
             ctx.serve_key(keys.servo_world, world.answer, f"servo-world-{keys.arm}")
+            # Read on the loop's thread, which owns the list; answered by a worker, never by the loop.
+            ctx.serve_key(keys.alarm_copy, alarm_copy_answer(lambda lp=loop: lp.call(lp.alarm_state.held_list)),
+                          f"servo-alarm-copy-{keys.arm}", encoding_of(keys.alarm_copy))
             ctx.every(WORLD_PERIOD, world.publish)
             if common.refresh():  # a restarted servo knows the active alarms before it says it is up
                 log.info("active alarms from the alarm monitor: %s",
