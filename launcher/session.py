@@ -9,7 +9,10 @@ client of the launcher's endpoint; a session it cannot have is a usage error
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+import threading
+from collections.abc import Iterator
 
 import zenoh
 
@@ -17,6 +20,7 @@ from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, check_arm
 from jara_arm.services.runtime.cell import CellError
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
+from .stop_signals import StopSignals
 from .tools.client import ClientError
 from .up.router import DEFAULT_LISTEN, zerror_text
 
@@ -59,6 +63,17 @@ def open_session(args: argparse.Namespace, parser: argparse.ArgumentParser,
     except zenoh.ZError as exc:
         parser.error(f"cannot join the Zenoh network ({', '.join(connect) or args.config}): "
                      f"{zerror_text(exc)}")
+
+
+@contextlib.contextmanager
+def listening(args: argparse.Namespace, parser: argparse.ArgumentParser,
+              join_within: float | None = None) -> Iterator[tuple[zenoh.Session, threading.Event]]:
+    """A command that runs until SIGINT / SIGTERM: its session (:func:`open_session`), closed at the end,
+    and the event those signals set."""
+    session = open_session(args, parser, join_within)
+    signals = StopSignals()
+    with session:
+        yield session, signals.stop
 
 
 def no_answer(args: argparse.Namespace, parser: argparse.ArgumentParser, exc: ClientError) -> int:

@@ -32,8 +32,7 @@ from jara_arm.schema.types import Alarm
 from jara_arm.services.runtime.arguments import positive_float
 
 from ..command import Command, setup_logging
-from ..session import add_arm, add_client_zenoh_arguments, no_answer, open_session
-from ..stop_signals import StopSignals
+from ..session import add_arm, add_client_zenoh_arguments, listening, no_answer
 from .arm_state import format_state, read_state, sample_encoding
 from .client import ArmClient, ClientError
 from .wait import alive_services
@@ -258,12 +257,10 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     setup_logging("WARNING")
-    session = open_session(args, parser)
-    signals = StopSignals()
-    with session:
+    with listening(args, parser) as (session, stop):
         client = ArmClient(session, args.arm, timeout=2.0)
         try:
-            return run_state(client, signals.stop, sys.stdout, once=args.once, period=args.period,
+            return run_state(client, stop, sys.stdout, once=args.once, period=args.period,
                              tty=sys.stdout.isatty())
         except ClientError as exc:
             return no_answer(args, parser, exc)

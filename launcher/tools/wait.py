@@ -23,8 +23,7 @@ from jara_arm.schema.keys import ArmKeys, Service, parse_alive
 from jara_arm.services.runtime.arguments import positive_float
 
 from ..command import Command, setup_logging
-from ..session import add_arm, add_client_zenoh_arguments, no_answer, open_session
-from ..stop_signals import StopSignals
+from ..session import add_arm, add_client_zenoh_arguments, listening, no_answer
 from .arm_state import format_state
 from .client import ArmClient, ClientError
 
@@ -126,12 +125,10 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     setup_logging("WARNING")
     began = time.monotonic()
-    session = open_session(args, parser, join_within=args.timeout)
-    signals = StopSignals()
-    with session:
+    with listening(args, parser, join_within=args.timeout) as (session, stop):
         client = ArmClient(session, args.arm, timeout=2.0)
         try:
-            return run_wait(client, Condition(args.condition), args.timeout, args.poll, signals.stop, sys.stderr,
+            return run_wait(client, Condition(args.condition), args.timeout, args.poll, stop, sys.stderr,
                             began)
         except ClientError as exc:
             return no_answer(args, parser, exc)

@@ -26,8 +26,7 @@ from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import Alarm
 
 from ..command import Command, setup_logging
-from ..session import add_arm_filter, add_client_zenoh_arguments, open_session
-from ..stop_signals import StopSignals
+from ..session import add_arm_filter, add_client_zenoh_arguments, listening
 from ..up.router import say
 
 log = logging.getLogger("jara_arm.launcher")
@@ -191,10 +190,8 @@ def _logs_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _logs(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     setup_logging("WARNING")
-    session = open_session(args, parser)
-    signals = StopSignals()
-    with session:
-        return run_logs(session, signals.stop, args.arm, args.service, args.level)
+    with listening(args, parser) as (session, stop):
+        return run_logs(session, stop, args.arm, args.service, args.level)
 
 
 def _alarms_arguments(parser: argparse.ArgumentParser) -> None:
@@ -204,10 +201,8 @@ def _alarms_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _alarms(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     setup_logging("WARNING")
-    session = open_session(args, parser)
-    signals = StopSignals()
-    with session:
-        return run_alarms(session, signals.stop, args.arm)
+    with listening(args, parser) as (session, stop):
+        return run_alarms(session, stop, args.arm)
 
 
 LOGS = Command(

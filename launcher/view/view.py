@@ -58,8 +58,7 @@ from jara_arm.schema.wire_types import StructType
 from jara_arm.services.runtime.arguments import positive_float
 
 from ..command import USAGE_ERROR, Command, setup_logging
-from ..session import add_client_zenoh_arguments, arm_id, open_session
-from ..stop_signals import StopSignals
+from ..session import add_client_zenoh_arguments, arm_id, listening
 from ..tools.arm_state import format_state, read_state
 from .scene import ArmScene, RobotGeometry
 
@@ -410,12 +409,10 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """The page until SIGINT/SIGTERM; a page that cannot be served is a usage error (exit 2)."""
     setup_logging("WARNING")
-    session = open_session(args, parser)
-    signals = StopSignals()
-    with session:
+    with listening(args, parser) as (session, stop):
         try:
             return run_view(session, ViewSettings(tuple(dict.fromkeys(args.arm)), args.host, args.port, args.rate),
-                            signals.stop, sys.stdout)
+                            stop, sys.stdout)
         except ViewError as exc:
             print(f"{parser.prog}: {exc}", file=sys.stderr)
             return USAGE_ERROR
