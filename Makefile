@@ -10,6 +10,9 @@ PACKAGES := schema robots services launcher kinematics client
 STAMP  := $(VENV)/.installed-$(shell (cat pyproject.toml; find $(PACKAGES) -type f -not -path '*/__pycache__/*' 2>/dev/null | LC_ALL=C sort) | cksum | cut -d' ' -f1)
 ARGS   ?=
 PYTEST_ARGS ?=
+# Test files run on this many pytest-xdist workers, each file whole on one (its module fixtures start
+# one system per file): 10 min instead of 15 on 2 cores (2026-11-27). TEST_WORKERS=0: one process.
+TEST_WORKERS ?= 2
 
 .PHONY: setup up test typecheck bench soak schema browser clean
 
@@ -28,7 +31,7 @@ up: setup
 	$(BIN)/jara-arm up --demo $(ARGS)
 
 test: setup typecheck
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(BIN)/python -m pytest $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile) $(PYTEST_ARGS)
 
 # Strict on the wire contract and the service framework (pyproject.toml [tool.mypy]).
 typecheck: setup
