@@ -5,7 +5,7 @@ sends its priorities from separate queues, highest first, so a class decides wha
 when a link is busy; its congestion control decides what a full queue does to the sender:
 ``block`` waits (and so stalls whoever routes the message), ``drop`` loses the message.
 
-The rule (docs/architecture.md, "Traffic"): only what keeps an arm safe and fed may block, and it
+The rule (docs/architecture.md, "Two routers", the bullet "Traffic classes per key"): only what keeps an arm safe and fed may block, and it
 only ever travels between the cell's own services on the cell bus; the client gateway turns every
 publication it forwards into ``drop`` (``launcher/up/gateway.py``), so no client can make anything wait.
 """

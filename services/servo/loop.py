@@ -81,7 +81,7 @@ T = TypeVar("T")
 SETTLED_CYCLES = 100
 #: Tracking tolerance when deciding that a soft-limit cause has gone [rad or m].
 LIMIT_TOLERANCE = 1e-3
-#: The alarm monitor's token and heartbeat are looked at, and ``Monitor/copy`` answered, every
+#: The alarm monitor's token and heartbeat are looked at every
 #: this many cycles [cycles]: 10 ms against a hung bound of 1.5 s, a twentieth of a busy arm's cycle.
 WATCH_EVERY = 10
 #: ``Servo/motion`` at least this often [s], and at once on every change.
