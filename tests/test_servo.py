@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 import time
@@ -22,7 +23,7 @@ from jara_arm.schema.operations import COMMON, OP
 from jara_arm.services.servo.control import OVERSPEED_MARGIN
 
 from .harness import PosCommands, Processes, RecordingArm, StatusLog
-from .support import Proc, client_session, free_port, service_argv, wait_alive, wait_until
+from .support import STREAM_PRIORITY, Proc, client_session, free_port, service_argv, wait_alive, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 DT = 1e-3
@@ -333,7 +334,11 @@ def test_the_readme_plain_client_runs_as_it_is(iiwa_rig: Rig):
     port = iiwa_rig.proc.argv[iiwa_rig.proc.argv.index("--listen") + 1].rsplit(":", 1)[1]
     assert snippet.count("tcp/127.0.0.1:7447") == 1
     snippet = snippet.replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{port}")
-    out = subprocess.run([sys.executable, "-c", snippet], capture_output=True, text=True, timeout=60)
+    # Real-time, as the README says to run it (beside busy loops, at normal priority, it once ran dry).
+    chrt = shutil.which("chrt")
+    assert chrt is not None, "chrt (util-linux) is needed to run the README's client as the README says"
+    out = subprocess.run([chrt, "-f", str(STREAM_PRIORITY), sys.executable, "-c", snippet], capture_output=True,
+                         text=True, timeout=60)
     assert out.returncode == 0, out.stdout + out.stderr
     assert out.stdout.splitlines() == ["{'id': 0, 'comment': 'OK'}", "0.15", "{'id': 0, 'comment': 'OK'}"], out.stdout
     assert iiwa_rig.state() == 0  # servo off, not moving, no alarm
