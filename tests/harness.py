@@ -270,7 +270,7 @@ class PosCommands:
         self._pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time.now(), tuple(map(float, q)))))
         return time.time()
 
-    def stream(self, points: np.ndarray, lead: int = 100, realtime: bool = False) -> list[float]:
+    def stream(self, points: np.ndarray, lead: int = 100, realtime: bool = True) -> list[float]:
         """Publish ``points`` keeping ``lead`` commands ahead of the servo, then one per cycle; their
         publication times. ``realtime``: every thread of this process at ``STREAM_PRIORITY`` meanwhile, as a
         low-level client's stack must be (``realtime_process_section``)."""

@@ -34,7 +34,7 @@ from jara_arm.schema.types import Time, TimedJointPos
 from jara_arm.services.runtime.cell import Cell
 
 from .harness import ServoTime, launched, listening
-from .support import LAUNCHER, Proc, free_port, wait_until
+from .support import LAUNCHER, STREAM_PRIORITY, Proc, free_port, realtime_process_section, wait_until
 
 ROBOT = "iiwa"
 KEYS = ArmKeys("arm0")
@@ -185,15 +185,16 @@ def _stream_towards(session: zenoh.Session, clock: ServoTime, delta: float, dura
     cycle = robots.robot(ROBOT).cmd_cycle
     pub = session.declare_publisher(KEYS.pos_cmd)
     n = int(duration / cycle)
-    t0 = time.monotonic()
-    for k in range(n + 1):
-        u = k / n
-        q = q0.copy()
-        q[0] += delta * (10 * u**3 - 15 * u**4 + 6 * u**5)
-        pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time.now(), tuple(map(float, q)))))
-        delay = t0 + (k - 50) * cycle - time.monotonic()  # 50 commands ahead of the servo
-        if delay > 0:
-            time.sleep(delay)
+    with realtime_process_section(STREAM_PRIORITY):  # as a low-level client must (README): it ran dry beside busy loops
+        t0 = time.monotonic()
+        for k in range(n + 1):
+            u = k / n
+            q = q0.copy()
+            q[0] += delta * (10 * u**3 - 15 * u**4 + 6 * u**5)
+            pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time.now(), tuple(map(float, q)))))
+            delay = t0 + (k - 50) * cycle - time.monotonic()  # 50 commands ahead of the servo
+            if delay > 0:
+                time.sleep(delay)
     pub.undeclare()
     return q0
 
