@@ -66,9 +66,9 @@ SAMPLES = _SamplesType()
 class TrajectoryRefusal(enum.StrEnum):
     """Why ``Servo/trajectory`` refused a trajectory (``MotionReply.refusal``; "" when accepted)."""
 
-    STALE = "stale"  # planned in another epoch, or after a motion no longer last: plan it again
+    STALE = "stale"  # planned in another epoch, after a motion no longer last, or from an older hold: plan it again
     LATE = "late"  # its splice point is already behind the interpolator: send it without the splice
-    START = "start"  # it does not start where the servo holds the arm, or where the motion before ends
+    START = "start"  # it does not start where the motion before it ends (at the splice)
     STATE = "state"  # the servo is off, has an alarm, or a low-level client's stream is moving the arm
 
 

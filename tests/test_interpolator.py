@@ -130,6 +130,20 @@ def test_a_splice_after_its_sample_is_late_and_a_wrong_start_is_refused():
     assert it.submit(off, it.epoch, 7, -1, rows[-1], True)[0] is TrajectoryRefusal.STALE  # 7 is not last
 
 
+def test_from_rest_only_a_motion_planned_from_the_held_target_is_taken():
+    """One planned from an older hold (before a servoON) is stale, however close: never a step of the command."""
+    held = np.array([0.1, -0.2])
+    it = Interpolator(2, DT)
+    for gap in (1e-3, 3.5e-5, 2e-6):
+        old = prepare(1, _rest_to_rest(held + gap, np.array([0.5, 0.5]), 0.5), True, DT, AMAX)
+        refusal, why = it.submit(old, it.epoch, 0, -1, held, True)
+        assert refusal is TrajectoryRefusal.STALE and "older hold" in why, gap
+        assert not it.active
+    exact = prepare(1, _rest_to_rest(held, np.array([0.5, 0.5]), 0.5), True, DT, AMAX)
+    assert it.submit(exact, it.epoch, 0, -1, held, True)[0] is None
+    assert np.max(np.abs(it.next() - held)) < 1e-6  # the first target is a sample of the path away from the hold
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_a_head_never_runs_past_its_last_sample(seed):
     """Whatever its length and speed, a head whose rest never comes slows down before its end."""

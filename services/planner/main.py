@@ -176,7 +176,7 @@ class PlannerService:
             reply = self._plan_from(req, start, epoch)
             if reply is not None:
                 return reply
-            log.info("%s: the queue was stopped while planning; planning again", req.op)
+            log.info("%s: the queue was stopped or the arm held anew while planning; planning again", req.op)
         return self._refused(ReturnCode.STATUS_ERR, "the queue kept being stopped while planning")
 
     def _plan_from(self, req: PlanRequest, start: Joints, epoch: int) -> PlanReply | None:

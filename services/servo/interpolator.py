@@ -53,10 +53,11 @@ RATE_MAX = 20.0
 #: (the control law's braking uses the same, ``control.BRAKE_JERK_TIME``).
 JERK_TIME = 0.02
 #: A trajectory must start this close to where it takes over [rad or m]: the planner
-#: plans from the exact samples the servo holds, so this is rounding only.
+#: plans from the exact samples the servo holds, so this is rounding only. From rest,
+#: one that starts further from the held target was planned from an older hold (a
+#: servoON holds the arm where the brakes left it): it is stale, planned again, never
+#: joined by a step of the command.
 START_TOLERANCE = 1e-6
-#: From rest, a trajectory must start this close to the target the servo holds [rad or m].
-REST_TOLERANCE = 1e-4
 #: A head keeps this share of the stopping distance it has left as margin [-]: the scale
 #: follows a cap that falls every cycle, with a lag.
 HEAD_MARGIN = 0.5
@@ -224,8 +225,9 @@ class Interpolator:
         if not at_rest:
             return TrajectoryRefusal.STATE, "the arm is moving (a low-level client's stream, or a stop)"
         gap = float(np.max(np.abs(traj.q[0] - held)))
-        if gap > REST_TOLERANCE:
-            return TrajectoryRefusal.START, f"it starts {gap:.3g} away from where the servo holds the arm"
+        if gap > START_TOLERANCE:
+            return TrajectoryRefusal.STALE, (f"it starts {gap:.3g} away from where the servo holds the arm "
+                                             "(planned from an older hold)")
         self.queue.append(traj)
         self.tau = 0.0
         # From rest the speed is 0: the scale may take its value at once.

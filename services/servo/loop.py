@@ -79,6 +79,9 @@ T = TypeVar("T")
 #: the arm still, and a step costs a third of an idle servo's CPU. Any command, stop or
 #: servo change steps it again in the same cycle.
 SETTLED_CYCLES = 100
+#: ... and every axis this close to its target [rad or m]: a world held while still closing on
+#: its target would snap to it when stepped again. Drives keep 1.2e-6 at most against gravity.
+SETTLE_TOLERANCE = 1e-5
 #: Tracking tolerance when deciding that a soft-limit cause has gone [rad or m].
 LIMIT_TOLERANCE = 1e-3
 #: The alarm monitor's token and heartbeat are looked at every
@@ -315,7 +318,8 @@ class ServoLoop:
             self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
             self._pos_list, self._vel_list = pos.tolist(), vel.tolist()
             self.state_bits = self._bits(self._vel_list)
-            self._still_for = 0 if self.state_bits & _MOVING else self._still_for + 1
+            closing = float(np.max(np.abs(pos - law.q))) > SETTLE_TOLERANCE
+            self._still_for = 0 if closing or self.state_bits & _MOVING else self._still_for + 1
         else:  # settled: the world is held as it is (SETTLED_CYCLES)
             self.state_bits = self._bits(self._vel_list)
         while (matching := self._fb_matching.try_recv()) is not None:
