@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 
 from jara_arm.launcher.tools.client import ArmClient
+from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import OP
@@ -24,7 +25,9 @@ def test_once_a_fault_is_listed_the_state_says_alarm_and_servo_off() -> None:
         disagreements: list[str] = []
         faults = 0
         for k in range(ROUNDS):
-            wait_until(lambda: client.common(OP.clearAlarms).id == ReturnCode.OK, 5, 0.05, "clearAlarms OK")
+            cleared: list[Reply] = []
+            wait_until(lambda: cleared.append(client.common(OP.clearAlarms)) or cleared[-1].id == ReturnCode.OK,
+                       5, 0.05, "clearAlarms OK", lambda: f"its last reply: {cleared[-1]}; log: {proc.lines[-20:]}")
             assert client.common(OP.servoON).id == ReturnCode.OK, proc.lines[-20:]
             assert client.middle(OP.setSpeedJoint, {"spdRatio": 30}).id == ReturnCode.OK
             turn = [0.2 if k % 2 == 0 else -0.2] + [0.0] * 6
