@@ -114,6 +114,11 @@ class AlarmList:
     alarms: tuple[Alarm, ...] = wire(w.ALARM_SEQ, doc="oldest first")
 
 
+#: No monitor's list: what ``Monitor/copy`` answers before the servo adopted one, and what a caller of
+#: ``Servo/power`` that holds none sends (never adopted: no monitor started at time 0).
+NO_LIST = AlarmList(Time(0, 0), Time(0, 0), ())
+
+
 def is_newer(candidate: AlarmList, current: AlarmList | None) -> bool:
     """Whether ``candidate`` replaces ``current``: a later monitor start, or a later list of it."""
     if current is None:

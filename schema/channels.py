@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
-from . import alarms, messages, motion, planner, wire_types
+from . import alarms, messages, motion, planner, power, wire_types
 from . import wire_types as w
 from .keys import ArmKeys, key_info
 from .operations import Interface
@@ -51,7 +51,8 @@ MESSAGE_TYPES: Mapping[str, StructType[Any]] = _message_types()
 def definitions() -> dict[str, dict[str, Any]]:
     """Every named type and message as JSON Schema, by name (the ``$defs`` of the generated schema)."""
     defs = {t.name: t.json_schema() for t in wire_types.NAMED_TYPES}
-    defs.update({m.name: m.json_schema() for m in messages.MESSAGES + planner.MESSAGES + motion.MESSAGES + alarms.MESSAGES})
+    every = messages.MESSAGES + planner.MESSAGES + motion.MESSAGES + power.MESSAGES + alarms.MESSAGES
+    defs.update({m.name: m.json_schema() for m in every})
     return defs
 
 

@@ -257,6 +257,12 @@ class ArmKeys:
         return f"{self.root}/Servo/motionControl"
 
     @property
+    @_key('queryable (internal)', 'servo', '`PowerRequest` → `PowerReply`', KeyEncoding.AS_REQUEST, Traffic.STREAM)
+    def servo_power(self) -> str:
+        """Queryable of the servo: servo on, off, clearAlarms; the reply carries its status after it (schema.power)."""
+        return f"{self.root}/Servo/power"
+
+    @property
     @_key('publisher (internal)', 'servo', '`MotionProgress`, on every change and at 10 Hz', KeyEncoding.MSGPACK,
           Traffic.CONTROL)
     def servo_motion(self) -> str:

@@ -83,6 +83,19 @@ class ServoStatus:
     softLimitJoint: tuple[LimitValue, ...] = wire(w.LIMIT_SEQ, "rad or m", "the joint soft limits in force, "
                                                   "per arm axis", default=())
     pos: tuple[float, ...] = wire(_SEQ, "rad or m", "measured joints this cycle", default=())
+    #: A restarted servo's statuses are newer than the old one's (``is_newer``); (0, 0): not said.
+    started: Time = wire(w.TIME, doc="start of the servo process", default=Time(0, 0))
+    #: Every status the servo makes counts, published on ``Servo/status`` or carried in a ``PowerReply``.
+    seq: int = wire(w.ULONG, doc="counts the statuses of this servo process from 1; 0: not numbered",
+                    default=0)
+
+
+def is_newer(candidate: ServoStatus, current: ServoStatus | None) -> bool:
+    """Whether the servo status ``candidate`` tells a later state than ``current`` (of a later servo
+    process, or later in it); an unnumbered one (``seq`` 0: a sender that does not number them) always does."""
+    if current is None or candidate.seq == 0:
+        return True
+    return (candidate.started.to_seconds(), candidate.seq) > (current.started.to_seconds(), current.seq)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -205,7 +218,8 @@ def servo_status_payload(status: ServoStatus) -> bytes:
         "consumed": status.consumed, "received": status.received, "underruns": status.underruns,
         "vel": list(status.vel), "effort": list(status.effort), "target": list(status.target),
         "softLimitJoint": [{"upper": lim.upper, "lower": lim.lower} for lim in status.softLimitJoint],
-        "pos": list(status.pos)})
+        "pos": list(status.pos), "started": {"sec": status.started.sec, "nsec": status.started.nsec},
+        "seq": status.seq})
     return payload
 
 

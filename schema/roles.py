@@ -40,7 +40,8 @@ class Role(enum.StrEnum):
     OPERATOR = "operator"
     #: An operator that may also stream its own position commands (``Servo/posCmd``, SyncFIFO),
     #: as a low-level client of WIRE.md does. Never ``Servo/trajectory`` or ``Servo/motionControl``:
-    #: the planner alone hands motions to the servo.
+    #: the planner alone hands motions to the servo; nor ``Servo/power``: the command's (a client switches
+    #: the servo through ``Servo/Common``).
     LOW_LEVEL = "low-level"
     #: Watches everything and may stop the arm (anyone who can see the arm may stop it):
     #: getters only, subscriptions, liveliness, the e-stop.

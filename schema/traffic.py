@@ -33,7 +33,8 @@ class Traffic(enum.Enum):
     #: SyncFIFO, so it waits (towards the servo only: it never reaches a client as ``block``). And the
     #: planner's hand-overs and controls (``Servo/trajectory``, ``Servo/motionControl``, queries of the
     #: services only): a trajectory is up to ~200 kB, and dropped for a full queue it was lost whole
-    #: (the planner waited 2 s for its reply and refused the motion).
+    #: (the planner waited 2 s for its reply and refused the motion). The command's ``Servo/power`` too:
+    #: a servoOFF is never lost behind a busy link.
     STREAM = TrafficClass("real_time", "block", True,
                           "the arm's position commands: never lost, never behind anything")
     #: Evidence of health and alarms raised: a late heartbeat is a false "hung".

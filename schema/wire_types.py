@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import enum
 import math
 from collections.abc import Mapping
 from typing import Any, Generic, TypeVar
@@ -22,6 +23,7 @@ from .codes import ULONG_MAX, AlarmType
 from .errors import WireError
 
 T = TypeVar("T")
+C = TypeVar("C", bound=enum.StrEnum)
 
 #: Largest deviation of ``R^T R`` from identity (and of det R from 1) accepted
 #: for the rotation block of an ``HgMatrix`` [-].
@@ -345,3 +347,12 @@ CARTESIAN_SPEED = StructType(t.CartesianSpeed, (
 NAMED_TYPES: tuple[WireType[Any], ...] = (
     TIME, LIMIT_VALUE, TIMED_JOINT_POS, ALARM, MANIP_INFO, CAR_POS_WITH_ELBOW, CARTESIAN_SPEED,
 )
+
+
+def choice(cls: type[C], value: str, path: str) -> C:
+    """The member of the string enum ``cls`` whose value is ``value`` (an ``action`` member); WireError naming
+    ``path`` and the valid values otherwise."""
+    try:
+        return cls(value)
+    except ValueError:
+        raise WireError(path, f"unknown {value!r}; valid: {', '.join(m.value for m in cls)}") from None

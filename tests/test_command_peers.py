@@ -23,6 +23,7 @@ import zenoh
 
 from jara_arm.robots import robot
 from jara_arm.schema import codec, messages
+from jara_arm.schema.alarms import NO_LIST
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.keys import ArmKeys, Service, op_of
@@ -40,6 +41,7 @@ from jara_arm.schema.planner import (
     PlannerProgress,
     PlanReply,
 )
+from jara_arm.schema.power import POWER_REPLY, POWER_REQUEST, PowerAction, PowerReply, PowerRequest
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue, Time, hg_matrix
 from jara_arm.services.runtime.timing import CONTROL_TIMEOUT
 
@@ -68,6 +70,10 @@ class FakePeers:
         self.moving = False
         self.talking = threading.Event()  # Servo/status is published while set
         self.talking.set()
+        self.powers: list[PowerRequest] = []  # the Servo/power requests, as they came
+        # The servo's state and its numbered statuses change together, as on the servo's loop thread.
+        self._servo_lock = threading.Lock()
+        self.status_seq = 0
         self.plans: list[MotionRequest] = []
         self.controls: list[str] = []
         self.control_requests: list[ControlRequest] = []  # each as it came, with its ratio
@@ -85,6 +91,7 @@ class FakePeers:
         self._status = session.declare_publisher(self.keys.servo_status)
         self._progress = session.declare_publisher(self.keys.planner_progress)
         self._servo_q = session.declare_queryable(self.keys.servo_common(), self._servo_common)
+        self._power_q = session.declare_queryable(self.keys.servo_power, self._power)
         self._plan_q = session.declare_queryable(self.keys.planner_plan, self._plan)
         self._control_q = session.declare_queryable(self.keys.planner_control, self._control)
         self.planner_token = session.liveliness().declare_token(self.keys.alive(Service.PLANNER))
@@ -96,10 +103,32 @@ class FakePeers:
 
     def _publish_status(self) -> None:
         if self.talking.is_set():
-            z = (0.0,) * N
-            st = messages.ServoStatus(Time.now(), self.servo_on, self.moving, self.alarm, 0, 0, 0, 0,
-                                      z, z, IIWA.ready_pose)
-            self._status.put(codec.encode_message(messages.SERVO_STATUS, st))
+            self.publish_status()
+
+    def _status_now(self, seq: int | None = None) -> messages.ServoStatus:
+        """The servo's status now (lock held), numbered as the servo numbers its statuses; ``seq``: an older
+        number (a status made before)."""
+        if seq is None:
+            self.status_seq += 1
+        z = (0.0,) * N
+        return messages.ServoStatus(Time.now(), self.servo_on, self.moving, self.alarm, 0, 0, 0, 0, z, z,
+                                    IIWA.ready_pose, started=self.started,
+                                    seq=self.status_seq if seq is None else seq)
+
+    def publish_status(self, seq: int | None = None, **changes: Any) -> None:
+        """Publish the status (with ``changes``), numbered ``seq`` if given, else the next number."""
+        with self._servo_lock:
+            st = dataclasses.replace(self._status_now(seq), **changes)
+        self._status.put(codec.encode_message(messages.SERVO_STATUS, st))
+
+    def _power(self, query: zenoh.Query) -> None:
+        req = codec.decode_message(POWER_REQUEST, query.payload.to_bytes())
+        self.powers.append(req)
+        with self._servo_lock:
+            if req.action in (PowerAction.ON, PowerAction.OFF):
+                self.servo_on = req.action == PowerAction.ON
+            body = PowerReply(OK, "OK", self._status_now())
+        query.reply(query.key_expr, codec.encode_message(POWER_REPLY, body))
 
     def _servo_common(self, query: zenoh.Query) -> None:
         op = COMMON[op_of(query.key_expr)]
@@ -198,6 +227,7 @@ def fake(fake_rig: tuple[LiveArm, FakePeers]) -> Iterator[tuple[LiveArm, FakePee
     peers.plans.clear()
     peers.controls.clear()
     peers.control_requests.clear()
+    peers.powers.clear()
     yield rig, peers
     peers.held.clear()
 
@@ -345,6 +375,28 @@ def test_pause_and_resume_from_the_planners_word(fake):
     # servoOFF aborts the planner.
     rig.call_ok(Interface.COMMON, OP.servoOFF)
     assert peers.controls[-1] == "abort"
+
+
+def test_a_servo_power_reply_is_the_state_at_once_and_an_older_publication_changes_nothing(fake):
+    """The command takes in the status each ``Servo/power`` reply carries: ``getState`` shows servoOFF and
+    servoON with the servo's publications silent, and a status made before the reply, arriving after it,
+    changes nothing. Without a monitor, clearAlarms is the servo's ``clear``; the command holds no list."""
+    rig, peers = fake
+    peers.talking.clear()
+    try:
+        rig.call_ok(Interface.COMMON, OP.servoOFF)
+        assert not rig.state() & StateBit.SERVO_ON
+        stale = peers.status_seq  # the number of a status made before the next reply
+        rig.call_ok(Interface.COMMON, OP.servoON)
+        assert rig.state() & StateBit.SERVO_ON
+        peers.publish_status(seq=stale, servoOn=False)  # on its way meanwhile
+        peers.publish_status(moving=True)  # newer, one key, one publisher: read after the stale one
+        wait_until(lambda: rig.state() & StateBit.MOVING, 0.8, what="the newer status read")
+        assert rig.state() & StateBit.SERVO_ON
+    finally:
+        peers.talking.set()
+    rig.call_ok(Interface.COMMON, OP.clearAlarms)
+    assert [(p.action, p.alarms) for p in peers.powers] == [("off", NO_LIST), ("on", NO_LIST), ("clear", NO_LIST)]
 
 
 def test_alarm_refuses_motions_and_set_soft_limit(fake):

@@ -51,6 +51,33 @@ def test_the_newest_planner_message_wins_by_its_number():
                          (StateBit.MOVING, 1), (0, 0), (StateBit.MOVING | StateBit.BUFFER_FULL, 2)]
 
 
+def test_the_newest_servo_status_wins_by_its_number():
+    """A ``Servo/power`` reply's status is taken in at once; a ``Servo/status`` publication made before it,
+    arriving after it, changes nothing; a restarted servo's statuses are newer."""
+    from jara_arm.services.command.state import StateTracker
+
+    tracker = StateTracker(publish=lambda view: None)
+    z = (0.0,) * N
+    started = Time.from_seconds(100.0)
+    off = messages.ServoStatus(Time.now(), False, False, False, 0, 0, 0, 0, z, z, z, started=started, seq=7)
+    tracker.on_status(off)
+    on = dataclasses.replace(off, servoOn=True, seq=9)  # the reply to servoON
+    tracker.on_status(on)
+    assert tracker.view().servo_on
+    tracker.on_status(dataclasses.replace(off, seq=8, tm=Time.now()))  # published before the reply
+    assert tracker.view().servo_on
+    tracker.on_status(None)  # the servo did not answer: nothing learnt
+    assert tracker.view().servo_on
+    tracker.on_status(dataclasses.replace(off, started=Time.from_seconds(200.0), seq=1))  # a restarted servo
+    assert not tracker.view().servo_on
+    # Once the one held is stale, any status counts: a servo restarted after the wall clock stepped back.
+    tracker = StateTracker(publish=lambda view: None, stale_after=0.05)
+    tracker.on_status(on)
+    wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")
+    tracker.on_status(dataclasses.replace(off, started=Time.from_seconds(50.0), seq=1))
+    assert tracker.view().servo_heard and not tracker.view().servo_on
+
+
 def test_the_state_is_published_only_when_it_changes():
     from jara_arm.services.command.state import StateTracker
 

@@ -106,7 +106,7 @@ FAST = [ARM.pos_feedback, ARM.pos_cmd, ARM.pos_target, ARM.servo_status, ARM.ser
         ARM.planner_progress, ARM.monitor_report, ARM.alarm_copy, ARM.planner_path]
 QUERYABLES = [ARM.interface(Interface.COMMON, OP.getState), ARM.interface(Interface.MIDDLE, OP.setSpeedJoint),
               ARM.servo_common(OP.servoON), ARM.monitor_common(OP.clearAlarms), ARM.planner_plan,
-              ARM.planner_control, ARM.servo_trajectory, ARM.servo_motion_control]
+              ARM.planner_control, ARM.servo_trajectory, ARM.servo_motion_control, ARM.servo_power]
 
 
 def test_every_key_declares_its_encoding():

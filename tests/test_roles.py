@@ -58,8 +58,9 @@ def test_no_client_may_stand_in_for_a_service(role: Role) -> None:
     for internal in (KEYS.servo_motion, KEYS.heartbeat(Service.SERVO), KEYS.heartbeat(), KEYS.monitor_report,
                      KEYS.command_settings, KEYS.planner_progress):
         assert internal not in puts
-    for internal in (KEYS.servo_trajectory, KEYS.servo_motion_control, KEYS.planner_plan, KEYS.planner_control):
-        assert internal not in rights["query"]  # only the services hand motions to the servo
+    for internal in (KEYS.servo_trajectory, KEYS.servo_motion_control, KEYS.servo_power, KEYS.planner_plan,
+                     KEYS.planner_control):
+        assert internal not in rights["query"]  # only the services hand motions to the servo and switch it
     assert (KEYS.pos_cmd in puts) == (role is Role.LOW_LEVEL)
 
 

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import msgpack
 import numpy as np
 import pytest
 
-from jara_arm.schema import alarms, codec, generate, keys, messages
+from jara_arm.schema import alarms, codec, generate, keys, messages, power
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import AlarmType, ReturnCode
@@ -80,7 +81,8 @@ def test_operation_table_is_the_idl():
     assert [p.name for p in MIDDLE["getSoftLimitCartesian"].outputs] == ["xLimit", "yLimit", "zLimit"]
 
 
-@pytest.mark.parametrize("t", w.NAMED_TYPES + messages.MESSAGES + alarms.MESSAGES, ids=lambda t: t.name)
+@pytest.mark.parametrize("t", w.NAMED_TYPES + messages.MESSAGES + alarms.MESSAGES + power.MESSAGES,
+                         ids=lambda t: t.name)
 @pytest.mark.parametrize("enc", list(Encoding), ids=lambda e: e.name)
 def test_type_round_trip(t, enc):
     value = sample(t)
@@ -237,8 +239,48 @@ def test_a_feedback_block_is_its_samples_byte_for_byte():
 def test_fast_status_encoder_equals_the_generic_one():
     st = messages.ServoStatus(Time(1_795_331_203, 250_143_514), True, False, True, 3, 10_001, 10_004, 2,
                               (0.1, -0.2), (1.5, -30.25), (0.0, 1e-9), (LimitValue(2.9, -2.9), LimitValue(1.0, -1.5)),
-                              (0.01, 0.02))
+                              (0.01, 0.02), Time(1_795_331_200, 7), 42)
     assert messages.servo_status_payload(st) == codec.encode_message(messages.SERVO_STATUS, st)
+
+
+def test_the_newer_servo_status_is_the_later_one_of_a_process_or_of_a_later_process():
+    z = (0.0,)
+    st = messages.ServoStatus(Time(1_795_331_203, 0), True, False, False, 0, 0, 0, 0, z, z, z,
+                              started=Time(1_795_331_200, 0), seq=5)
+    assert messages.is_newer(st, None)
+    assert messages.is_newer(dataclasses.replace(st, seq=6), st)
+    assert not messages.is_newer(st, st)  # the same status again: nothing new
+    # older by its number, though made later by its tm: a publication on its way before a reply's status
+    assert not messages.is_newer(dataclasses.replace(st, seq=4, tm=Time(1_795_331_204, 0)), st)
+    restarted = dataclasses.replace(st, started=Time(1_795_331_210, 0), seq=1)
+    assert messages.is_newer(restarted, st) and not messages.is_newer(st, restarted)
+    assert messages.is_newer(dataclasses.replace(st, started=Time(0, 0), seq=0), st)  # unnumbered: always taken
+
+
+@pytest.mark.parametrize("enc", list(Encoding), ids=lambda e: e.name)
+@pytest.mark.parametrize("value,field,reason", [
+    ({}, "action", "missing"),
+    ({"action": 1}, "action", "string"),
+    ({"action": "on", "force": True}, "force", "unexpected"),
+    ({"action": "on", "alarms": []}, "alarms", "map"),
+    ({"action": "on", "alarms": {"tm": {"sec": 1, "nsec": 0}, "alarms": []}}, "alarms.started", "missing"),
+], ids=["no-action", "action-type", "extra", "alarms-type", "alarms-started"])
+def test_a_bad_power_request_names_the_field(value, field, reason, enc):
+    payload = codec.dumps(value, enc)
+    with pytest.raises(WireError) as err:
+        codec.decode_message(power.POWER_REQUEST, payload, enc)
+    assert (err.value.field, err.value.code) == (field, ReturnCode.VALUE_ERR), str(err.value)
+    assert reason in err.value.reason, str(err.value)
+
+
+def test_a_power_request_names_a_known_action_and_holds_a_list_or_none():
+    req = codec.decode_message(power.POWER_REQUEST, codec.dumps({"action": "reboot"}))
+    assert req.alarms == alarms.NO_LIST  # a caller that holds no monitor's list may leave it out
+    with pytest.raises(WireError) as err:
+        w.choice(power.PowerAction, req.action, "action")
+    assert (err.value.field, err.value.code) == ("action", ReturnCode.VALUE_ERR)
+    assert "'reboot'" in err.value.reason and "on, off, clear, sync" in err.value.reason
+    assert w.choice(power.PowerAction, "sync", "action") is power.PowerAction.SYNC
 
 
 def test_keys():
@@ -249,6 +291,7 @@ def test_keys():
     assert k.pos_cmd == "JARA_ARM/arm-1_B/Servo/posCmd"
     assert k.pos_target == "JARA_ARM/arm-1_B/Servo/posTarget"
     assert k.servo_trajectory == "JARA_ARM/arm-1_B/Servo/trajectory"
+    assert k.servo_power == "JARA_ARM/arm-1_B/Servo/power"
     assert k.pos_feedback == "JARA_ARM/arm-1_B/Servo/posFeedback"
     assert k.state == "JARA_ARM/arm-1_B/state" and k.alarm == "JARA_ARM/arm-1_B/alarm"
     assert k.estop == "JARA_ARM/arm-1_B/estop"

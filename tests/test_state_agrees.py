@@ -1,10 +1,15 @@
 """What a client reads agrees at every instant: once ``getActiveAlarm`` lists a FAULT, ``getState`` has bit
 0x04 and no servo-on bit (before, 1 of 6 e-stops beside a busy loop answered 0x03 right after the FAULT was
-listed: the state followed the publications, the alarm list the monitor's live answer)."""
+listed: the state followed the publications, the alarm list the monitor's live answer). And right after a
+servoON or servoOFF reply, ``getState`` shows it: the servo's reply carries its status (``Servo/power``)."""
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Iterator
+
+import pytest
+import zenoh
 
 from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.schema.codec import Reply
@@ -13,45 +18,70 @@ from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import OP
 
 from .harness import launched
-from .support import client_session, wait_until
+from .support import Proc, client_session, wait_until
 
 ROUNDS = 50
+POWER_ROUNDS = 20
 
 
-def test_once_a_fault_is_listed_the_state_says_alarm_and_servo_off() -> None:
+@pytest.fixture(scope="module")
+def system() -> Iterator[tuple[Proc, zenoh.Session, ArmClient]]:
+    """``jara-arm up --robot iiwa``, every service alive, and a client of it."""
     with launched("--robot", "iiwa") as (proc, port), client_session(port) as session:
         client = ArmClient(session)
         client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR))
-        disagreements: list[str] = []
-        faults = 0
-        for k in range(ROUNDS):
-            cleared: list[Reply] = []
-            wait_until(lambda: cleared.append(client.common(OP.clearAlarms)) or cleared[-1].id == ReturnCode.OK,
-                       5, 0.05, "clearAlarms OK", lambda: f"its last reply: {cleared[-1]}; log: {proc.lines[-20:]}")
-            assert client.common(OP.servoON).id == ReturnCode.OK, proc.lines[-20:]
-            assert client.middle(OP.setSpeedJoint, {"spdRatio": 30}).id == ReturnCode.OK
-            turn = [0.2 if k % 2 == 0 else -0.2] + [0.0] * 6
-            assert client.middle(OP.movePTPJointRel, {"jointPoints": turn}).id == ReturnCode.OK
-            seen = threading.Event()
-            stop = threading.Event()
+        yield proc, session, client
 
-            def poll() -> None:
-                nonlocal faults
-                while not stop.is_set():
-                    listed = client.common(OP.getActiveAlarm)["alarms"]
-                    state = client.state()
-                    if any(a.type is AlarmType.FAULT for a in listed):
-                        faults += 1
-                        if not state & StateBit.ALARM or state & StateBit.SERVO_ON:
-                            disagreements.append(f"round {k}: getActiveAlarm {listed}, then getState 0x{state:02x}")
-                        seen.set()
 
-            poller = threading.Thread(target=poll, daemon=True)
-            poller.start()
-            try:
-                session.put(client.keys.estop, b"")
-                assert seen.wait(5), f"round {k}: no FAULT listed within 5 s of the e-stop"
-            finally:
-                stop.set()
-                poller.join(5)
-        assert faults >= ROUNDS and not disagreements, "\n".join(disagreements[:10])
+def test_right_after_a_servo_on_or_off_reply_the_state_shows_it(
+        system: tuple[Proc, zenoh.Session, ArmClient]) -> None:
+    """No wait, no poll: the command took in the status the servo's reply carried (before, it waited up to
+    0.5 s for two publications and then answered with whatever had come)."""
+    proc, _session, client = system
+    wait_until(lambda: client.common(OP.clearAlarms).id == ReturnCode.OK, 5, 0.05, "clearAlarms OK")
+    late: list[str] = []
+    for k in range(POWER_ROUNDS):
+        for name, on in ((OP.servoON, True), (OP.servoOFF, False)):
+            assert client.common(name).id == ReturnCode.OK, proc.lines[-20:]
+            state, servo = client.state(), int(client.servo(OP.getState)["state"])
+            if bool(state & StateBit.SERVO_ON) != on or bool(servo & StateBit.SERVO_ON) != on:
+                late.append(f"round {k}: {name} answered, then getState 0x{state:02x}, the servo's 0x{servo:02x}")
+    assert not late, "\n".join(late[:10])
+
+
+def test_once_a_fault_is_listed_the_state_says_alarm_and_servo_off(
+        system: tuple[Proc, zenoh.Session, ArmClient]) -> None:
+    proc, session, client = system
+    disagreements: list[str] = []
+    faults = 0
+    for k in range(ROUNDS):
+        cleared: list[Reply] = []
+        wait_until(lambda: cleared.append(client.common(OP.clearAlarms)) or cleared[-1].id == ReturnCode.OK,
+                   5, 0.05, "clearAlarms OK", lambda: f"its last reply: {cleared[-1]}; log: {proc.lines[-20:]}")
+        assert client.common(OP.servoON).id == ReturnCode.OK, proc.lines[-20:]
+        assert client.middle(OP.setSpeedJoint, {"spdRatio": 30}).id == ReturnCode.OK
+        turn = [0.2 if k % 2 == 0 else -0.2] + [0.0] * 6
+        assert client.middle(OP.movePTPJointRel, {"jointPoints": turn}).id == ReturnCode.OK
+        seen = threading.Event()
+        stop = threading.Event()
+
+        def poll() -> None:
+            nonlocal faults
+            while not stop.is_set():
+                listed = client.common(OP.getActiveAlarm)["alarms"]
+                state = client.state()
+                if any(a.type is AlarmType.FAULT for a in listed):
+                    faults += 1
+                    if not state & StateBit.ALARM or state & StateBit.SERVO_ON:
+                        disagreements.append(f"round {k}: getActiveAlarm {listed}, then getState 0x{state:02x}")
+                    seen.set()
+
+        poller = threading.Thread(target=poll, daemon=True)
+        poller.start()
+        try:
+            session.put(client.keys.estop, b"")
+            assert seen.wait(5), f"round {k}: no FAULT listed within 5 s of the e-stop"
+        finally:
+            stop.set()
+            poller.join(5)
+    assert faults >= ROUNDS and not disagreements, "\n".join(disagreements[:10])

@@ -1,9 +1,12 @@
 """``ManipulatorCommonInterface_Common`` of the middle level, one method per IDL operation.
 
 Everything the low level owns (servo power, joint soft limits, manipulator
-information) is passed through to the servo's ``Servo/Common/<op>``, so that
-the two levels never disagree: the reply is the servo's, decoded and
-re-encoded through the schema. The joint feedback is the newest one the servo
+information) is passed through to the servo, so that the two levels never
+disagree: the reply is the servo's, decoded and re-encoded through the schema.
+Servo power goes to ``Servo/power``, whose reply carries the servo's status
+after the action, numbered: the state takes it in at once, so the bits read
+after the reply show the change (no wait for a publication); the rest to
+``Servo/Common/<op>``. The joint feedback is the newest one the servo
 published in its status (``feedback.py``), as for ``getFeedbackPosCartesian``:
 clients may ask it as fast as they can, and the servo process, whose clock
 shares one GIL with its query thread, must not pay for that. The alarms are the alarm
@@ -22,6 +25,7 @@ from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import Refusal
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import ControlAction
+from jara_arm.schema.power import PowerAction
 from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.rpc import ok
 
@@ -42,15 +46,15 @@ class CommandCommon:
         core = self.core
         with core.serial:
             reply = core.monitor.call(OP.clearAlarms)
-            if reply is None:  # no alarm monitor: the servo clears its own (and says so)
-                reply = core.servo.call(OP.clearAlarms)
-                if reply.id != ReturnCode.NG:
-                    core.state.await_servo()  # the alarm bit read next shows it
-                return reply
+            if reply is None:  # no monitor answered us: the servo asks it too, else clears its own (and says so)
+                return self._power(PowerAction.CLEAR)
             alarms = core.monitor.alarm_list()  # the bit read next shows the clear at once...
             if alarms is not None:
                 core.state.on_alarms(alarms)
-                core.state.await_servo_alarm(bool(alarms.alarms))  # ...and the servo's too
+            # ...and the servo's too: it follows the cleared list before the reply. A silent servo's status
+            # counts for nothing (state.py): not asked, no SERVO_TIMEOUT to wait.
+            if core.state.view().servo_heard:
+                self._power(PowerAction.SYNC)
             return reply
 
     def getActiveAlarm(self) -> Reply:
@@ -79,12 +83,11 @@ class CommandCommon:
         """Servo off first (the brakes hold at once), then the planner forgets its queue."""
         core = self.core
         with core.serial:
-            reply = core.servo.call(OP.servoOFF)
+            reply = self._power(PowerAction.OFF)
             # Abort even if the servo did not answer: no buffered motion may run once it is back.
             abort = core.planner.control(ControlAction.ABORT)
             core.state.on_progress(abort.progress)
             if reply.ok:
-                core.state.await_servo(lambda st: not st.servoOn)
                 log.info("servo off; motion queue discarded")
             if not abort.reply.ok:
                 # The servo is off, which is what was asked; a missing planner has nothing queued.
@@ -92,13 +95,19 @@ class CommandCommon:
             return reply
 
     def servoON(self) -> Reply:
-        core = self.core
-        with core.serial:
-            reply = core.servo.call(OP.servoON)
+        with self.core.serial:
+            reply = self._power(PowerAction.ON)
             if reply.ok:
-                core.state.await_servo(lambda st: st.servoOn)  # getState shows 0x01 from now on
                 log.info("servo on")
             return reply
+
+    def _power(self, action: PowerAction) -> Reply:
+        """The servo's reply to ``action``, its status taken in: the bits read next show what it did. The
+        servo first adopts the monitor's newest list held here (a clear it has not heard of yet)."""
+        core = self.core
+        answer = core.servo.power(action, core.state.alarm_list())
+        core.state.on_status(answer.status)
+        return answer.reply
 
     def setSoftLimitJoint(self, softLimit: tuple[LimitValue, ...]) -> Reply:
         """Refused while moving (servo or queue) or alarmed; the servo checks the values."""

@@ -17,7 +17,10 @@ The planner's queue and pause (and the servo's speed override, which
 ``Ext/getSpeedOverride`` reads) come in its ``PlannerProgress``, by publication
 and in the reply to every plan and control call; the newest one by its number
 wins (``schema.planner.is_newer``), so a publication that arrives after a
-reply it predates changes nothing. A planner or monitor that went away takes
+reply it predates changes nothing. The servo's ``ServoStatus`` likewise, by
+``Servo/status`` and in the reply to every ``Servo/power`` call
+(``schema.messages.is_newer``): the bits read after a servoON or servoOFF reply
+show it, with no wait for a publication. A planner or monitor that went away takes
 its facts with it: its later messages, still on their way, are ignored.
 """
 
@@ -30,6 +33,7 @@ import time
 from collections.abc import Callable
 
 from jara_arm.schema import alarms as alarm_lists
+from jara_arm.schema import messages as servo_statuses
 from jara_arm.schema import planner as planner_progress
 from jara_arm.schema.alarms import AlarmList
 from jara_arm.schema.codes import AlarmType, StateBit
@@ -78,8 +82,7 @@ class StateTracker:
         self._stale_after = stale_after
         self._cond = threading.Condition()
         self._status: ServoStatus | None = None
-        self._status_at = -float("inf")  # [s] monotonic time of the last Servo/status
-        self._status_count = 0
+        self._status_at = -float("inf")  # [s] monotonic time the newest ServoStatus arrived
         self._progress: PlannerProgress | None = None  # the planner's newest, None while it is away
         self._planner_gone_at = -float("inf")  # ``started`` [s] of the last planner that went away
         self._alarms: AlarmList | None = None  # the monitor's newest list, None while it is away
@@ -134,6 +137,10 @@ class StateTracker:
             return None
         return st.pos, time.monotonic() - at
 
+    def alarm_list(self) -> AlarmList | None:
+        """The monitor's newest list; None before the first one and while the monitor is away."""
+        return self._alarms  # one read: the inputs replace it whole
+
     def planner_progress(self) -> PlannerProgress | None:
         """The planner's newest ``PlannerProgress``; None before the first one and while the planner is away."""
         return self._progress  # one read: the inputs replace it whole
@@ -145,11 +152,18 @@ class StateTracker:
         return tuple(st.softLimitJoint) if st is not None else ()
 
     # -- inputs -----------------------------------------------------------------------
-    def on_status(self, status: ServoStatus) -> None:
+    def on_status(self, status: ServoStatus | None) -> None:
+        """A ``ServoStatus``, published or in a ``Servo/power`` reply (None: the servo did not answer)."""
         with self._cond:
+            if status is None:
+                return
+            # Older by its number than one taken in just now: made before it, and on its way meanwhile. Once the
+            # one held is stale, any status counts (a servo restarted after the wall clock stepped back).
+            fresh = time.monotonic() - self._status_at <= self._stale_after
+            if fresh and not servo_statuses.is_newer(status, self._status):
+                return
             self._status = status
             self._status_at = time.monotonic()
-            self._status_count += 1
             self._cond.notify_all()
             self._changed()
 
@@ -191,30 +205,6 @@ class StateTracker:
         """Re-evaluate time-dependent bits (a servo that fell silent)."""
         with self._cond:
             self._changed()
-
-    def await_servo(self, done: Callable[[ServoStatus], bool] | None = None, count: int = 2,
-                    timeout: float = 0.5) -> bool:
-        """Wait until ``count`` more Servo/status messages arrived and the newest satisfies ``done``.
-
-        After a servo call that changes its state, so that the bits read next
-        already show the change. Two messages: the first may have been on its
-        way before the servo handled the call. False on timeout.
-        """
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            target = self._status_count + count
-            while True:
-                st = self._status
-                if self._status_count >= target and st is not None and (done is None or done(st)):
-                    return True
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(left)
-
-    def await_servo_alarm(self, alarm: bool, timeout: float = 0.5) -> bool:
-        """Wait until the servo's status shows ``alarm`` (it follows the monitor's list); False on timeout."""
-        return self.await_servo(lambda st: st.alarm == alarm, count=1, timeout=timeout)
 
     # -- publication ------------------------------------------------------------------
     def _changed(self) -> None:

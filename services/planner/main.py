@@ -34,6 +34,7 @@ import zenoh
 
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec, messages
+from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
@@ -236,12 +237,9 @@ class PlannerService:
         """Decode one pause / resume / stop / abort / override and have the servo apply it."""
         try:
             req = codec.decode_message(CONTROL_REQUEST, payload, encoding)
-            action = ControlAction(req.action)
+            action = w.choice(ControlAction, req.action, "action")
         except WireError as exc:
             return ControlReply(int(ReturnCode.VALUE_ERR), str(exc), self.handover.progress())
-        except ValueError:
-            return ControlReply(int(ReturnCode.VALUE_ERR), f"action: unknown {req.action!r}; valid: "
-                                + ", ".join(a.value for a in ControlAction), self.handover.progress())
         if action is ControlAction.OVERRIDE and not 0.0 <= req.ratio <= 100.0:
             return ControlReply(int(ReturnCode.VALUE_ERR), f"ratio: the speed override is 0 .. 100 %, got "
                                 f"{req.ratio}", self.handover.progress())

@@ -21,12 +21,12 @@ from collections.abc import Callable
 import zenoh
 
 from jara_arm.schema import codec
-from jara_arm.schema.alarms import ALARM_LIST, MONITOR_OPERATIONS, AlarmList, format_code
+from jara_arm.schema.alarms import ALARM_LIST, MONITOR_OPERATIONS, NO_LIST, AlarmList, format_code
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import Refusal, WireError
 from jara_arm.schema.keys import ArmKeys
-from jara_arm.schema.types import Alarm, Time
+from jara_arm.schema.types import Alarm
 
 from .ask import Answer, Asker, Silence
 from .rpc import Answer as QueryAnswer
@@ -92,10 +92,6 @@ class MonitorLink:
         except WireError as exc:
             log.error("the alarm monitor sent a malformed alarm list: %s", exc)
             return None
-
-
-#: ``Monitor/copy``'s answer while the servo has adopted no list: no monitor heard, no alarm to take over.
-NO_LIST = AlarmList(Time(0, 0), Time(0, 0), ())
 
 
 def alarm_copy_answer(current: Callable[[], AlarmList | None]) -> QueryAnswer:

@@ -141,6 +141,7 @@ class ServoLoop:
         self._late_cycles = 0  # consecutive cycles waited for a command mid-motion
         self._still_for = 0  # consecutive cycles at rest (see SETTLED_CYCLES)
         self._status_k = -STATUS_EVERY_AT_REST  # cycle of the last ServoStatus
+        self._status_seq = 0  # ServoStatus made, published or not (ServoStatus.seq)
         self._watch_phase = 0  # ticks n % WATCH_EVERY == this watch the alarm monitor
         self._watch_k = 0
         self._status_said: tuple[object, ...] = ()  # what it said besides the measured values
@@ -345,7 +346,7 @@ class ServoLoop:
         if (k - self._status_k >= (STATUS_EVERY_AT_REST if settled else STATUS_EVERY)
                 or (settled and self._status_changed())):  # moving: the FIFO changes every cycle
             self._status_k = k
-            self._publish_status(Time(tm_ns // 1_000_000_000, tm_ns % 1_000_000_000))
+            self._publish_status(tm_ns)
         return True
 
     def _take_commands(self) -> None:
@@ -514,16 +515,27 @@ class ServoLoop:
         law = self.law
         return self._status_said != (self.state_bits, len(law.fifo), law.soft_limits) or self._status_q is not law.q
 
-    def _publish_status(self, tm: Time) -> None:
+    def _publish_status(self, tm_ns: int) -> None:
         law = self.law
         self._status_said = (self.state_bits, len(law.fifo), law.soft_limits)
         self._status_q = law.q
-        st = messages.ServoStatus(
-            tm, self.servo_on, bool(self.state_bits & _MOVING), self.alarmed,
-            len(law.fifo), law.consumed, self.received, self.underruns,
+        self._status_pub.put(messages.servo_status_payload(self._status(tm_ns)))
+
+    def status_now(self) -> messages.ServoStatus:
+        """The status now, numbered, for a reply (loop thread: through :meth:`call`); its bits after what
+        the call did, not the last cycle's (the servo's getState agrees with the reply)."""
+        self.state_bits = self._bits(self._vel_list)
+        return self._status(self._tm_ns)
+
+    def _status(self, tm_ns: int) -> messages.ServoStatus:
+        """The next status, of the newest feedback sample's time ``tm_ns`` [ns]: every one made is numbered."""
+        law = self.law
+        self._status_seq += 1
+        return messages.ServoStatus(
+            Time(tm_ns // 1_000_000_000, tm_ns % 1_000_000_000), self.servo_on, bool(self.state_bits & _MOVING),
+            self.alarmed, len(law.fifo), law.consumed, self.received, self.underruns,
             tuple(self.fb_vel.tolist()), tuple(self.fb_eff.tolist()), tuple(law.q.tolist()),
-            law.soft_limits, tuple(self.fb_pos.tolist()))
-        self._status_pub.put(messages.servo_status_payload(st))
+            law.soft_limits, tuple(self.fb_pos.tolist()), self._started, self._status_seq)
 
     # -- the interpolator (schema/motion.py) ------------------------------------------------
     def submit(self, traj: Trajectory) -> MotionReply:

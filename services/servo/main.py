@@ -13,6 +13,7 @@ from jara_arm.robots import DEFAULT_ROBOT, RobotModel
 from jara_arm.robots import robot as robot_model
 from jara_arm.schema.alarms import format_code
 from jara_arm.schema import codec
+from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, Refusal, WireError
@@ -21,19 +22,16 @@ from jara_arm.schema.motion import MOTION_CONTROL, MOTION_REPLY, TRAJECTORY, Mot
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.arguments import obstacle_argument
-from jara_arm.services.runtime.monitor_link import MonitorLink, alarm_copy_answer, clear_reply
+from jara_arm.services.runtime.monitor_link import MonitorLink, alarm_copy_answer
 from jara_arm.services.runtime.rpc import ok
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 
 from .clock import DEFAULT_RT_PRIORITY, ServoClock
 from .loop import ServoLoop
+from .power import NO_MONITOR, ServoPower
 from .world_info import WORLD_PERIOD, WorldPublisher, servo_world
 
 log = logging.getLogger("jara_arm.servo")
-
-
-#: Comment added to replies made without the alarm monitor.
-NO_MONITOR = "the alarm monitor does not answer: the servo's own alarms only"
 
 
 class ServoCommon:
@@ -41,34 +39,24 @@ class ServoCommon:
 
     ``getActiveAlarm`` and ``clearAlarms`` are the alarm monitor's (forwarded);
     without a monitor they fall back to the servo's own latches and say so.
+    ``servoON``, ``servoOFF`` and ``clearAlarms`` are :class:`~.power.ServoPower`'s,
+    which ``Servo/power`` shares.
     """
 
-    def __init__(self, loop: ServoLoop, monitor: MonitorLink) -> None:
-        self.loop = loop
-        self.model = loop.model
-        self.monitor = monitor
+    def __init__(self, power: ServoPower) -> None:
+        self.loop = power.loop
+        self.model = power.loop.model
+        self.monitor = power.monitor
+        self.power = power
 
     def clearAlarms(self) -> Reply:
-        reply = self.monitor.call(OP.clearAlarms)
-        if reply is None:
-            cleared, kept = self.loop.call(self.loop.clear_alarms_now)
-            return clear_reply(cleared, kept, NO_MONITOR)
-        self.refresh()  # the latches the monitor cleared are released before the reply
-        return reply
+        return self.power.clear()
 
     def getActiveAlarm(self) -> Reply:
         reply = self.monitor.call(OP.getActiveAlarm)
         if reply is None:
             return ok(f"OK ({NO_MONITOR})", alarms=self.loop.alarms)
         return reply
-
-    def refresh(self) -> bool:
-        """Adopt the monitor's current list now (not when its publication arrives); False if silent."""
-        alarms = self.monitor.alarm_list()
-        if alarms is None:
-            return False
-        self.loop.call(lambda: self.loop.adopt_monitor_list(alarms))
-        return True
 
     def getFeedbackPosJoint(self) -> Reply:
         return ok(pos=tuple(self.loop.fb_pos.tolist()))
@@ -83,16 +71,10 @@ class ServoCommon:
         return ok(state=self.loop.state_bits)
 
     def servoOFF(self) -> Reply:
-        self.loop.call(self.loop.servo_off_now)
-        return ok()
+        return self.power.off()
 
     def servoON(self) -> Reply:
-        why = self.loop.call(self.loop.servo_on_now)
-        if why and self.loop.alarm_state.monitor_alarms and self.refresh():
-            why = self.loop.call(self.loop.servo_on_now)  # alarms just cleared through another interface
-        if why:
-            raise Refusal(ReturnCode.STATUS_ERR, f"servoON refused: {why}")
-        return ok()
+        return self.power.on()
 
     def setSoftLimitJoint(self, softLimit: tuple[LimitValue, ...]) -> Reply:
         check_soft_limits(softLimit, self.model)
@@ -115,12 +97,7 @@ class ServoMotion:
     def control(self, payload: bytes, encoding: Encoding) -> bytes:
         def apply() -> MotionReply:
             req = codec.decode_message(MOTION_CONTROL, payload, encoding)
-            try:
-                action = MotionAction(req.action)
-            except ValueError:
-                raise WireError("action", f"unknown {req.action!r}; valid: "
-                                + ", ".join(a.value for a in MotionAction)) from None
-            return self.loop.motion_control(action, req.ratio)
+            return self.loop.motion_control(w.choice(MotionAction, req.action, "action"), req.ratio)
         return self._answer(payload, encoding, apply)
 
     def _answer(self, payload: bytes, encoding: Encoding, apply: Callable[[], MotionReply]) -> bytes:
@@ -188,8 +165,9 @@ class ServoService(ArmService):
         ids = [a for a, _ in ctx.arms]
         for loop in loops:
             keys = ArmKeys(loop.arm)
-            common = ServoCommon(loop, MonitorLink(ctx.session, keys))
-            ctx.serve(keys.servo_common(), COMMON, common, f"servo-rpc-{keys.arm}")
+            power = ServoPower(loop, MonitorLink(ctx.session, keys))
+            ctx.serve(keys.servo_common(), COMMON, ServoCommon(power), f"servo-rpc-{keys.arm}")
+            ctx.serve_key(keys.servo_power, power.answer, f"servo-power-{keys.arm}")
             motion = ServoMotion(loop)
             traj_key, control_key = keys.servo_trajectory, keys.servo_motion_control
             # Control has a worker of its own: a pause never waits behind a long trajectory's decoding.
@@ -204,7 +182,7 @@ class ServoService(ArmService):
             ctx.serve_key(keys.alarm_copy, alarm_copy_answer(lambda lp=loop: lp.call(lp.alarm_state.held_list)),
                           f"servo-alarm-copy-{keys.arm}", encoding_of(keys.alarm_copy))
             ctx.every(WORLD_PERIOD, world.publish)
-            if common.refresh():  # a restarted servo knows the active alarms before it says it is up
+            if power.refresh():  # a restarted servo knows the active alarms before it says it is up
                 log.info("active alarms from the alarm monitor: %s",
                          ", ".join(format_code(a.code) for a in loop.alarm_state.monitor_alarms) or "none",
                          extra={"arm": keys.arm})
