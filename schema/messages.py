@@ -90,6 +90,10 @@ class ServoStatus:
                     default=0)
 
 
+#: A status no servo made (``seq`` 0, nothing on, nothing measured): "none held" where a field needs a value.
+NO_STATUS = ServoStatus(Time(0, 0), False, False, False, 0, 0, 0, 0, (), (), ())
+
+
 def is_newer(candidate: ServoStatus, current: ServoStatus | None) -> bool:
     """Whether the servo status ``candidate`` tells a later state than ``current`` (of a later servo
     process, or later in it); an unnumbered one (``seq`` 0: a sender that does not number them) always does."""

@@ -28,6 +28,7 @@ from typing import Any
 
 from . import wire_types as w
 from .errors import WireError
+from .messages import NO_STATUS, SERVO_STATUS, ServoStatus
 from .types import CartesianSpeed, HgMatrix, JointPos, LimitValue, Time
 from .wire_types import StructType, struct, wire
 
@@ -79,6 +80,10 @@ class MotionRequest:
     op: str = wire(w.STRING)
     args: dict[str, Any] = wire(_ArgsType())  # wire form (maps, lists), already checked by the codec
     settings: MotionSettings = wire(MOTION_SETTINGS)
+    #: The caller's newest servo status: a servoON's reply reaches the command before the servo's publication
+    #: reaches the planner, which goes by the newer of the two (``messages.is_newer``).
+    servo: ServoStatus = wire(SERVO_STATUS, doc="the servo's newest status the caller holds (seq 0: none); the "
+                              "planner goes by it where it is newer than its own", default=NO_STATUS)
 
 
 class ControlAction(enum.StrEnum):

@@ -23,6 +23,7 @@ from jara_arm.robots import Obstacle, robot
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.operations import OP
 from jara_arm.schema.planner import ControlAction
+from jara_arm.schema.types import Time
 from jara_arm.services.planner.early import EARLY_OPS
 from jara_arm.services.planner.handover import Handover
 from jara_arm.services.planner.planning import MotionPlanner
@@ -372,3 +373,22 @@ def test_the_start_point_listens_for_a_status_before_it_says_there_is_none():
     with pytest.raises(PlanRefused, match="no status from the servo"):
         silent.start_point()
     assert time.monotonic() - t0 >= STATUS_LISTEN
+
+
+def test_the_start_point_goes_by_the_callers_status_where_it_is_newer():
+    """A servoON's reply reaches the command before the servo's publication reaches the planner: the command's
+    status (``MotionRequest.servo``), newer by its number, is gone by; an older one changes nothing (a CI run
+    refused a move "the servo is off" right after servoON answered OK)."""
+    import dataclasses as dc
+
+    servo = LocalServo(IIWA, Q0)
+    started = Time.from_seconds(time.time())
+    heard = dc.replace(servo.status(), servoOn=False, started=started, seq=7)  # the planner's newest: off
+    h = Handover(IIWA.dof, servo.dt, servo.ask_trajectory, servo.ask_control, lambda _p: None,
+                 lambda: heard, servo.progress)
+    with pytest.raises(PlanRefused, match="the servo is off"):
+        h.start_point()
+    with pytest.raises(PlanRefused, match="the servo is off"):
+        h.start_point(dc.replace(heard, servoOn=True, seq=6))  # older than what the planner heard
+    start, _epoch = h.start_point(dc.replace(heard, servoOn=True, seq=8))  # the servoON's reply
+    np.testing.assert_array_equal(start, Q0)

@@ -16,6 +16,7 @@ from typing import Any
 from jara_arm.schema.codec import Reply, encode_args
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import Refusal
+from jara_arm.schema.messages import NO_STATUS
 from jara_arm.schema.operations import MIDDLE, OP
 from jara_arm.schema.planner import ControlAction, MotionRequest
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, HgMatrix, JointPos, LimitValue
@@ -143,7 +144,9 @@ class CommandMiddle:
                 raise Refusal(ReturnCode.NG, f"{name} refused: joint soft limits unavailable: "
                               f"{limits.comment}")
             # In wire form for Planner/plan (another process): the planner decodes them once (planner/request.py).
-            request = MotionRequest(name, encode_args(op, args), self.settings.snapshot(limits["softLimit"]))
+            # With the servo's newest status the command holds: the planner may not have heard of a servoON yet.
+            request = MotionRequest(name, encode_args(op, args), self.settings.snapshot(limits["softLimit"]),
+                                    core.state.servo_status() or NO_STATUS)
             answer = core.planner.plan(request)
             core.state.on_progress(answer.progress)  # the queue as it is now, before serial is let go
             if answer.reply.ok:

@@ -137,6 +137,10 @@ class StateTracker:
             return None
         return st.pos, time.monotonic() - at
 
+    def servo_status(self) -> ServoStatus | None:
+        """The servo's newest status (by its number); None before the first one."""
+        return self._status  # one read: the inputs replace it whole
+
     def alarm_list(self) -> AlarmList | None:
         """The monitor's newest list; None before the first one and while the monitor is away."""
         return self._alarms  # one read: the inputs replace it whole

@@ -34,7 +34,7 @@ from collections.abc import Callable
 import numpy as np
 
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.messages import ServoStatus
+from jara_arm.schema.messages import NO_STATUS, ServoStatus, is_newer as is_newer_status
 from jara_arm.schema.motion import (
     MotionAction,
     MotionControl,
@@ -113,8 +113,12 @@ class Handover:
 
     # ------------------------------------------------------------------ planning side
 
-    def start_point(self) -> tuple[Joints, int]:
-        """(start joints of the next motion, the servo's epoch); raises PlanRefused if there is none."""
+    def start_point(self, known: ServoStatus = NO_STATUS) -> tuple[Joints, int]:
+        """(start joints of the next motion, the servo's epoch); raises PlanRefused if there is none.
+
+        ``known``: the caller's newest servo status (``MotionRequest.servo``; seq 0: none), gone by where it is
+        newer than the planner's own: the reply to a servoON reaches the command before the servo's publication
+        reaches the planner."""
         self._refresh()
         newest = self._poll_status()
         deadline = time.monotonic() + STATUS_LISTEN
@@ -123,8 +127,9 @@ class Handover:
             newest = self._poll_status()
         with self._lock:
             now = time.time()
-            if newest is not None:
-                self._status, self._status_at = newest, now
+            for st in (newest, known if known.seq else None):
+                if st is not None and is_newer_status(st, self._status):
+                    self._status, self._status_at = st, now
             st = self._status
             if st is None or now - self._status_at > STATUS_TIMEOUT:
                 raise PlanRefused(ReturnCode.STATUS_ERR, "no status from the servo: is it running?")

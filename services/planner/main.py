@@ -168,7 +168,7 @@ class PlannerService:
         req: PlanRequest | None = None
         for _ in range(_REPLAN):
             try:
-                start, epoch = self.handover.start_point()
+                start, epoch = self.handover.start_point(wire.servo)
                 if req is None:  # its parameters, once (request.py): after the servo's state, values come last
                     req = PlanRequest.decode(wire)
             except PlanRefused as exc:
