@@ -128,9 +128,14 @@ def test_a_watch_forgives_a_service_that_said_it_leaves():
 
 # -- starved or hung: the evidence of this host's kernel (services/runtime/starvation.py) ------------
 def _child(code: str) -> "subprocess.Popen[bytes]":
+    """A Python process running ``code``, returned once its interpreter has started: its start-up runs and
+    waits for a CPU, evidence of life that is not what a test watches (under load it lasts past a bound)."""
     import subprocess
     import sys
-    return subprocess.Popen([sys.executable, "-c", code])
+    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdout.write('up\\n'); sys.stdout.flush()\n"
+                              + code], stdout=subprocess.PIPE)
+    assert child.stdout is not None and child.stdout.readline() == b"up\n"
+    return child
 
 
 def _watch_of(pid: int, host: str | None = None):
