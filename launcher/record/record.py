@@ -135,6 +135,8 @@ def run_record(session: zenoh.Session, writer: RecordingWriter, settings: Record
                 dropped = f", {inbox.dropped} dropped" if inbox.dropped else ""
                 progress.show(f"{writer.path}: {human_size(writer.size)}, {writer.count} messages, "
                               f"{rate:.0f} msg/s{dropped}")
+        if len(inbox.items) > _BATCH:  # behind (nice +10 on a busy machine): say why the exit takes a while
+            progress.say(f"stopping: writing the {len(inbox.items)} samples still buffered")
         linger = time.monotonic() + LINGER  # what was on its way when told to stop happened before the stop
         while time.monotonic() < linger:
             if not drain(inbox, writer):
