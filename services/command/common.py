@@ -106,7 +106,8 @@ class CommandCommon:
         servo first adopts the monitor's newest list held here (a clear it has not heard of yet)."""
         core = self.core
         answer = core.servo.power(action, core.state.alarm_list())
-        core.state.on_status(answer.status)
+        if answer.status is not None and answer.status.seq:  # seq 0: the servo could not say
+            core.state.on_status(answer.status)
         return answer.reply
 
     def setSoftLimitJoint(self, softLimit: tuple[LimitValue, ...]) -> Reply:

@@ -127,9 +127,12 @@ class Handover:
             newest = self._poll_status()
         with self._lock:
             now = time.time()
-            for st in (newest, known if known.seq else None):
-                if st is not None and is_newer_status(st, self._status):
-                    self._status, self._status_at = st, now
+            # The planner's own receipts say the servo is heard (``_status_at``); once they are stale any of them
+            # counts (a servo restarted with an earlier clock). The caller's only adds what it says, if newer.
+            if newest is not None and (is_newer_status(newest, self._status) or now - self._status_at > STATUS_TIMEOUT):
+                self._status, self._status_at = newest, now
+            if known.seq and is_newer_status(known, self._status):
+                self._status = known
             st = self._status
             if st is None or now - self._status_at > STATUS_TIMEOUT:
                 raise PlanRefused(ReturnCode.STATUS_ERR, "no status from the servo: is it running?")

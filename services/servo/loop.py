@@ -79,8 +79,9 @@ T = TypeVar("T")
 #: the arm still, and a step costs a third of an idle servo's CPU. Any command, stop or
 #: servo change steps it again in the same cycle.
 SETTLED_CYCLES = 100
-#: ... and every axis this close to its target [rad or m]: a world held while still closing on
-#: its target would snap to it when stepped again. Drives keep 1.2e-6 at most against gravity.
+#: ... and every arm axis this close to its target [rad or m]: a world held while still closing on
+#: its target would snap to it when stepped again. Drives keep 1.2e-6 at most against gravity. A
+#: servoON whose arm is this close keeps the target it held (a motion planned from it stays valid).
 SETTLE_TOLERANCE = 1e-5
 #: Tracking tolerance when deciding that a soft-limit cause has gone [rad or m].
 LIMIT_TOLERANCE = 1e-3
@@ -140,6 +141,7 @@ class ServoLoop:
 
         self._late_cycles = 0  # consecutive cycles waited for a command mid-motion
         self._still_for = 0  # consecutive cycles at rest (see SETTLED_CYCLES)
+        self._arm_axes = model.axis_num  # the axes SETTLE_TOLERANCE looks at
         self._status_k = -STATUS_EVERY_AT_REST  # cycle of the last ServoStatus
         self._status_seq = 0  # ServoStatus made, published or not (ServoStatus.seq)
         self._watch_phase = 0  # ticks n % WATCH_EVERY == this watch the alarm monitor
@@ -319,7 +321,8 @@ class ServoLoop:
             self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
             self._pos_list, self._vel_list = pos.tolist(), vel.tolist()
             self.state_bits = self._bits(self._vel_list)
-            closing = float(np.max(np.abs(pos - law.q))) > SETTLE_TOLERANCE
+            n = self._arm_axes  # a gripper held closed on a part keeps its target on purpose (ControlLaw.let_go)
+            closing = float(np.max(np.abs(pos[:n] - law.q[:n]))) > SETTLE_TOLERANCE
             self._still_for = 0 if closing or self.state_bits & _MOVING else self._still_for + 1
         else:  # settled: the world is held as it is (SETTLED_CYCLES)
             self.state_bits = self._bits(self._vel_list)
@@ -445,7 +448,10 @@ class ServoLoop:
         if self.law.braking is not None and not self.servo_on:  # already on (after a WARNING): nothing to do
             return "the arm is still stopping"
         if not self.servo_on:
-            self.law.hold(self.fb_pos)  # hold where the brakes held it
+            if float(np.max(np.abs(self.fb_pos - self.law.q))) > SETTLE_TOLERANCE:
+                self.law.hold(self.fb_pos)  # hold where the brakes held it
+            else:  # settled on its target: the same hold, so a motion planned from it is not stale
+                self.law.hold(self.law.q)
             self.servo_on = True
             self._log.info("servo on")
         return None

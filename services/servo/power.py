@@ -9,6 +9,7 @@ the caller knows the new state at once instead of waiting for a publication.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 
 from jara_arm.schema import codec
@@ -17,12 +18,15 @@ from jara_arm.schema.alarms import NO_LIST, AlarmList
 from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import Refusal
+from jara_arm.schema.messages import NO_STATUS
 from jara_arm.schema.operations import OP
 from jara_arm.schema.power import POWER_REPLY, POWER_REQUEST, PowerAction, PowerReply
 from jara_arm.services.runtime.monitor_link import MonitorLink, clear_reply
 from jara_arm.services.runtime.rpc import ok
 
 from .loop import ServoLoop
+
+log = logging.getLogger(__name__)
 
 #: Comment added to replies made without the alarm monitor.
 NO_MONITOR = "the alarm monitor does not answer: the servo's own alarms only"
@@ -87,5 +91,11 @@ class ServoPower:
             reply = act()
         except Refusal as exc:  # a WireError too
             reply = Reply(exc.code, exc.comment)
-        status = self.loop.call(self.loop.status_now)
+        except Exception as exc:  # the loop did not take the call in time (a starved host): NG now, not silence
+            log.warning("Servo/power: %s", exc)
+            reply = Reply(ReturnCode.NG, f"the servo could not act: {exc}")
+        try:
+            status = self.loop.call(self.loop.status_now)
+        except Exception:  # NO_STATUS (seq 0) says none: the caller keeps what it had
+            status = NO_STATUS
         return key, codec.encode_message(POWER_REPLY, PowerReply(int(reply.id), reply.comment, status), encoding)
