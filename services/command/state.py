@@ -161,10 +161,13 @@ class StateTracker:
         with self._cond:
             if status is None:
                 return
-            # Older by its number than one taken in just now: made before it, and on its way meanwhile. Once the
-            # one held is stale, any status counts (a servo restarted after the wall clock stepped back).
-            fresh = time.monotonic() - self._status_at <= self._stale_after
-            if fresh and not servo_statuses.is_newer(status, self._status):
+            # Older by its number: made before the one held, and on its way meanwhile. Once the one held is stale,
+            # a status of another servo process counts whatever its number (one restarted after the wall clock
+            # stepped back); of the same process, never an older one (this process's threads were held up).
+            held = self._status
+            stale = time.monotonic() - self._status_at > self._stale_after
+            if not servo_statuses.is_newer(status, held) and not (
+                    stale and held is not None and status.started != held.started):
                 return
             self._status = status
             self._status_at = time.monotonic()
