@@ -70,10 +70,13 @@ def test_the_newest_servo_status_wins_by_its_number():
     assert tracker.view().servo_on
     tracker.on_status(dataclasses.replace(off, started=Time.from_seconds(200.0), seq=1))  # a restarted servo
     assert not tracker.view().servo_on
-    # Once the one held is stale, any status counts: a servo restarted after the wall clock stepped back.
+    # Once the one held is stale, another servo process's status counts: one restarted after the wall clock
+    # stepped back; an older one of the same process still does not (this process's threads were held up).
     tracker = StateTracker(publish=lambda view: None, stale_after=0.05)
     tracker.on_status(on)
     wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")
+    tracker.on_status(dataclasses.replace(off, seq=8))
+    assert not tracker.view().servo_heard
     tracker.on_status(dataclasses.replace(off, started=Time.from_seconds(50.0), seq=1))
     assert tracker.view().servo_heard and not tracker.view().servo_on
 
