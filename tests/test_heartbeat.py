@@ -77,6 +77,9 @@ def test_beats_name_the_service_count_up_and_report_a_stuck_loop(session: zenoh.
     finally:
         heartbeat.close()
     try:
+        # Beats sent before close() returned may still be on their way (under load, one was): wait for the last.
+        sent = heartbeat._seq  # the number the next beat would have had
+        wait_until(lambda: beats and beats[-1][1].seq == sent - 1, 2.0, what="the last beat sent before close()")
         n = len(beats)
         time.sleep(SILENT_WINDOW)  # the subscriber still listens: a beat after close() would show
         assert len(beats) == n  # closed: silent
