@@ -321,9 +321,12 @@ class ServoLoop:
             self.fb_pos, self.fb_vel, self.fb_eff = pos, vel, eff
             self._pos_list, self._vel_list = pos.tolist(), vel.tolist()
             self.state_bits = self._bits(self._vel_list)
-            n = self._arm_axes  # a gripper held closed on a part keeps its target on purpose (ControlLaw.let_go)
-            closing = float(np.max(np.abs(pos[:n] - law.q[:n]))) > SETTLE_TOLERANCE
-            self._still_for = 0 if closing or self.state_bits & _MOVING else self._still_for + 1
+            if self.state_bits & _MOVING:
+                self._still_for = 0
+            else:  # at rest only: a gripper held closed on a part keeps its target on purpose (ControlLaw.let_go)
+                n = self._arm_axes
+                closing = float(np.max(np.abs(pos[:n] - law.q[:n]))) > SETTLE_TOLERANCE
+                self._still_for = 0 if closing else self._still_for + 1
         else:  # settled: the world is held as it is (SETTLED_CYCLES)
             self.state_bits = self._bits(self._vel_list)
         while (matching := self._fb_matching.try_recv()) is not None:
