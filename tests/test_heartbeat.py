@@ -7,6 +7,7 @@ provoked for real in ``test_alarms_services.py``; here: what a heartbeat says.
 from __future__ import annotations
 
 import collections
+import logging
 import time
 
 import pytest
@@ -277,3 +278,26 @@ def test_a_beat_from_another_host_gives_no_evidence():
     watch = _watch_of(os.getpid(), host="another-boot-id/pid:[1]")
     assert watch.pid == 0
     assert _judged_after(watch, 0.5)
+
+
+def test_a_start_that_does_not_finish_is_said_with_where_it_is(monkeypatch, caplog) -> None:
+    """A service's start that hangs (never reaches its tokens) is logged with its main thread's stack."""
+    from jara_arm.services.runtime import service
+
+    monkeypatch.setattr(service, "START_STUCK_AFTER", 0.05)
+    def hanging_step() -> None:  # until the timer has spoken (at most 5 s)
+        wait_until(lambda: any("has not finished" in r.getMessage() for r in caplog.records), 5.0, 0.01,
+                   "the start-up warning")
+
+    with caplog.at_level(logging.WARNING, logger=service.log.name):
+        timer = service._say_if_stuck("servo")
+        hanging_step()  # past the bound: the timer speaks while this thread is in here
+        timer.cancel()
+    said = [r.getMessage() for r in caplog.records if "has not finished starting" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("servo has not finished starting"), said
+    assert "in hanging_step" in said[0] and "wait_until(" in said[0], said[0]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger=service.log.name):
+        service._say_if_stuck("servo").cancel()  # a start that finishes in time says nothing
+        time.sleep(0.2)
+    assert not [r for r in caplog.records if "has not finished starting" in r.getMessage()]
