@@ -252,11 +252,16 @@ def test_readiness_warns_about_missing_services_then_says_ready_once(
     settings = up.UpSettings((up.ArmSpec("a1", "iiwa"), up.ArmSpec("a2", "panda")),
                              RouterSettings(("tcp/127.0.0.1:7447",)))
     joined = [False]  # the gateway's link to the bus
-    readiness = up.Readiness(settings, presence, lambda: joined[0])  # type: ignore[arg-type]
+    printed = {("a2", "servo"): [f"line {i}" for i in range(40)] + ['  File "x.py", line 1 in stuck_here']}
+    readiness = up.Readiness(settings, presence, lambda: joined[0],  # type: ignore[arg-type]
+                             lambda arm, service: printed.get((arm, service), []))
     presence.alive.update(("a1", name) for name in NAMES)
     with caplog.at_level(logging.WARNING, "jara_arm.launcher"):
         readiness.poll()
     assert "still waiting for servo (a2)" in caplog.text and "servo (a1)" not in caplog.text
+    # What the missing one printed last (a stuck start's stacks): its last READY_TAIL_LINES lines.
+    assert "the last lines of servo (a2):" in caplog.text and "servo (a2) | " in caplog.text, caplog.text
+    assert "in stuck_here" in caplog.text and "line 11\n" in caplog.text and "line 10\n" not in caplog.text
     assert "ready" not in capsys.readouterr().out
     presence.alive.update(("a2", name) for name in NAMES)
     with caplog.at_level(logging.WARNING, "jara_arm.launcher"):
@@ -269,6 +274,19 @@ def test_readiness_warns_about_missing_services_then_says_ready_once(
     names = ", ".join(NAMES)
     assert capsys.readouterr().out.splitlines() == [
         f"jara-arm: ready: a1 (iiwa): {names}; a2 (panda): {names}; listening on tcp/127.0.0.1:7447"]
+
+
+def test_the_output_of_a_service_is_found_by_arm_also_in_the_one_servo_of_every_arm() -> None:
+    gateway, servo, planner = (supervisor.Child(name, ["true"]) for name in
+                               (up.GATEWAY_LABEL, "servo (a1,a2)", "planner (a2)"))
+    for child in (gateway, servo, planner):
+        child.tail.append(f"printed by {child.label}")
+    sup = supervisor.Supervisor([[gateway], [servo], [planner]])
+    assert up.output_of(sup, "a2", "servo") == ["printed by servo (a1,a2)"]
+    assert up.output_of(sup, "a1", "servo") == ["printed by servo (a1,a2)"]
+    assert up.output_of(sup, "a2", "planner") == ["printed by planner (a2)"]
+    assert up.output_of(sup, "", up.GATEWAY_LABEL) == ["printed by client gateway"]
+    assert up.output_of(sup, "a1", "planner") == [] and up.output_of(sup, "a3", "servo") == []
 
 
 @pytest.mark.timeout(120)

@@ -19,7 +19,7 @@ import os
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, any_arm_log, check_arm
@@ -38,7 +38,12 @@ from .supervisor import Child, Supervisor
 
 log = logging.getLogger("jara_arm.launcher")
 
-READY_TIMEOUT = 60.0  #: warn (and keep waiting) if the services are not all alive by then [s]
+#: Warn (and keep waiting) if the services are not all alive by then, and every as long again [s]; the
+#: warning shows the last lines of each missing one (a service stuck in its start dumps its stacks there,
+#: ``START_STUCK_AFTER``). Beside a busy loop per core the services were up 2-7 s after the launch.
+READY_TIMEOUT = 30.0
+#: Lines of a missing service's own output shown with that warning.
+READY_TAIL_LINES = 30
 POLL_PERIOD = 0.1  #: main loop period: children, logs, liveliness [s]
 
 
@@ -164,12 +169,27 @@ def children(service: ServiceSpec, settings: UpSettings, bus: str) -> list[Child
     return [Child(label(service.name, a.arm), child_argv(service, a, settings, bus)) for a in arms]
 
 
+def output_of(supervisor: Supervisor, arm: str, service: str) -> list[str]:
+    """The last lines the process of ``service`` for ``arm`` printed (one servo serves every arm; ``arm``
+    "" for the gateway)."""
+    for child in supervisor.children:
+        if child.label == (label(service, arm) if arm else service):
+            return list(child.tail)
+        name, _, arms = child.label.partition(" (")
+        if arm and name == service and arm in arms.rstrip(")").split(","):
+            return list(child.tail)
+    return []
+
+
 class Readiness:
     """Prints the one ready line once every expected service is alive; warns while not."""
 
-    def __init__(self, settings: UpSettings, presence: Presence, gateway_joined: Callable[[], bool]) -> None:
+    def __init__(self, settings: UpSettings, presence: Presence, gateway_joined: Callable[[], bool],
+                 output: Callable[[str, str], Sequence[str]] = lambda arm, service: ()) -> None:
+        """``output(arm, service)``: the last lines that service's process printed (``arm`` "" for the gateway)."""
         self.presence = presence
         self.gateway_joined = gateway_joined
+        self.output = output
         self.expected = [(a.arm, s.name) for a in settings.arms for s in SERVICES]
         self.ready = False
         arms = "; ".join(f"{a.arm} ({a.robot}): {', '.join(s.name for s in SERVICES)}"
@@ -201,6 +221,11 @@ class Readiness:
             self._warn_at += READY_TIMEOUT
             log.warning("not ready after %.0f s; still waiting for %s", READY_TIMEOUT,
                         ", ".join(label(s, a) if a else s for a, s in missing))
+            for arm, service in missing:
+                lines = list(self.output(arm, service))[-READY_TAIL_LINES:]
+                if lines:
+                    name = label(service, arm) if arm else service
+                    log.warning("the last lines of %s:\n%s", name, "\n".join(f"  {name} | {x}" for x in lines))
 
 
 #: How long the launcher waits for the gateway to join the bus before it starts the services anyway [s]
@@ -246,9 +271,9 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
         def gateway_joined() -> bool:  # evidence, not a token: its link to the bus is up
             return gateway.gateway_ids[0] in {str(z) for z in session.info.routers_zid()}
 
-        readiness = Readiness(settings, presence, gateway_joined)
         # The gateway first, so that it stops last: clients see the services leave.
         supervisor = Supervisor([[gateway_child(settings, bus)], *[children(s, settings, bus) for s in start_order()]])
+        readiness = Readiness(settings, presence, gateway_joined, lambda arm, service: output_of(supervisor, arm, service))
         log.info("cell bus on %s; client gateway on %s; starting %d process(es)", ", ".join(cell_bus.endpoints()),
                  ", ".join(gateway.endpoints()), len(supervisor.children))
         demos: list[subprocess.Popen] = []

@@ -32,13 +32,13 @@ from __future__ import annotations
 import abc
 import argparse
 import contextlib
+import faulthandler
 import gc
 import logging
 import os
 import signal
 import sys
 import threading
-import traceback
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, ClassVar, TypeVar
@@ -296,37 +296,23 @@ def run(service: ArmService, argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-#: A service whose start (session open to tokens declared and up lines said) takes longer than this is
-#: said to be stuck, with its main thread's stack [s]. A servo serving two arms once never declared its
-#: tokens beside a busy loop per core (its heartbeats went on; the launcher waited 60 s for it, in vain):
-#: this names where. A healthy start takes 1-4 s here, beside busy loops.
+#: A service that has not finished starting (session opened, parts declared, tokens declared, up lines
+#: said) this long after it began dumps every thread's stack to stderr (Python's ``faulthandler``: from a C thread, so also while a
+#: thread holds the GIL) [s]. A servo serving two arms once never declared its tokens beside a busy loop
+#: per core, and said nothing more; the launcher shows a child's last lines when it is not ready
+#: (``jara-arm up``), so the dump names where it hangs. A start takes 2-7 s here beside busy loops.
 START_STUCK_AFTER = 20.0
-
-
-def _say_if_stuck(what: str) -> threading.Timer:
-    """A timer that logs the calling thread's stack if not cancelled within :data:`START_STUCK_AFTER`."""
-    ident = threading.get_ident()
-
-    def _say() -> None:
-        frame = sys._current_frames().get(ident)
-        stack = "".join(traceback.format_stack(frame)) if frame is not None else "(the thread has ended)\n"
-        log.warning("%s has not finished starting after %.0f s; its main thread is at:\n%s",
-                    what, START_STUCK_AFTER, stack.rstrip())
-
-    timer = threading.Timer(START_STUCK_AFTER, _say)
-    timer.daemon = True
-    timer.start()
-    return timer
 
 
 def _serve(service: ArmService, conf: zenoh.Config, arms: Sequence[tuple[str, RobotModel]], health: Health,
            stop: threading.Event, options: argparse.Namespace, priority: int) -> None:
     kind = type(service).SERVICE
     servers: list[QueryServer] = []
+    # Again every START_STUCK_AFTER while stuck: the last lines a launcher keeps show where it is now.
+    faulthandler.dump_traceback_later(START_STUCK_AFTER, repeat=True)  # cancelled once up, or by a failed start
     with _session(conf, [a for a, _ in arms], kind) as session:
-        stuck = _say_if_stuck(kind.value)
         with contextlib.ExitStack() as stack:
-            stack.callback(stuck.cancel)  # also on a failed start
+            stack.callback(faulthandler.cancel_dump_traceback_later)  # also on a failed start
             ctx = ServiceContext(session, arms, health, stop, options, priority, kind, stack)
             for heartbeat in ctx.heartbeats.values():
                 stack.callback(heartbeat.close)  # also on a failed start
@@ -348,7 +334,7 @@ def _serve(service: ArmService, conf: zenoh.Config, arms: Sequence[tuple[str, Ro
                     tokens.append((ctx.heartbeats[arm], _announce(session, ArmKeys(arm), kind)))
                 for arm, line in ctx._up_lines:
                     log.info(line, extra={"arm": arm})
-                stuck.cancel()
+                faulthandler.cancel_dump_traceback_later()
                 while not stop.wait(ctx._wait()):
                     for pulse in main_pulses:
                         pulse.beat()
