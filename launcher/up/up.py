@@ -195,7 +195,8 @@ class Readiness:
         arms = "; ".join(f"{a.arm} ({a.robot}): {', '.join(s.name for s in SERVICES)}"
                          for a in settings.arms)
         self.line = f"jara-arm: ready: {arms}; listening on {', '.join(settings.router.endpoints())}"
-        self._warn_at = time.monotonic() + READY_TIMEOUT
+        self._began = time.monotonic()
+        self._warn_at = self._began + READY_TIMEOUT
 
     def missing(self) -> list[tuple[str, str]]:
         """``(arm, service)`` not alive yet; ``("", "client gateway")`` while the gateway has not joined."""
@@ -219,7 +220,7 @@ class Readiness:
             say(self.line)
         elif missing and not self.ready and time.monotonic() >= self._warn_at:
             self._warn_at += READY_TIMEOUT
-            log.warning("not ready after %.0f s; still waiting for %s", READY_TIMEOUT,
+            log.warning("not ready after %.0f s; still waiting for %s", time.monotonic() - self._began,
                         ", ".join(label(s, a) if a else s for a, s in missing))
             for arm, service in missing:
                 lines = list(self.output(arm, service))[-READY_TAIL_LINES:]
