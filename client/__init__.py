@@ -2,7 +2,7 @@
 
 =============  ====================================================================================
 ``arm``        :class:`Arm`: every operation by its IDL name, typed; :func:`rel` for relative targets
-``motion``     :class:`Motion`, what a move returns: ``wait()``, ``fate``, ``done``
+``motion``     :class:`Motion`, what a move returns: ``wait()``, ``fate``, ``progress``, ``done``
 ``errors``     :class:`ArmError`, the package's one error root: ``Refused``, ``NoAnswer``, ``MotionFailed``
 ``operations`` the typed methods, generated from ``jara_arm.schema`` (``python -m jara_arm.client.generate``)
 =============  ====================================================================================

@@ -7,7 +7,7 @@
         arm.setSpeedJoint(40)
         arm.movePTPJointRel([0.3, 0, 0, 0, 0, 0, 0])           # returns once the arm arrived
         lin = arm.moveLinearCartesianRel(rel(dz=-0.05), wait=False)
-        print(lin.fate)                                          # waiting, queued, running, done, ...
+        print(lin.fate, lin.progress)                            # waiting, queued, running, done, ...; 0.0 .. 1.0
         lin.wait(timeout=10)                                     # MotionFailed says why, if it did not end
 
 Every call raises :class:`~.errors.Refused` (code and comment) for any RETURN_ID but OK, and

@@ -4,7 +4,8 @@ Motions complete strictly in the order they were accepted, and a discard (``stop
 service) takes the running motion and every one queued behind it. So the fate of a motion is told by
 the first progress report without it: discarded if that report's ``lastDiscarded`` reached it, done if
 its ``lastDone`` did. A restarted planner (a newer ``started``) lost its queue: every motion still
-followed was discarded.
+followed was discarded. How far the running one has come is the servo's own count of its samples passed
+(``runningShare``), never a clock of the client's.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from collections.abc import Callable
 import zenoh
 
 from jara_arm.schema.keys import ArmKeys
-from jara_arm.schema.planner import PLANNER_PROGRESS, PlannerProgress, is_newer
+from jara_arm.schema.planner import PLANNER_PROGRESS, PlannerProgress, is_newer, refreshes
 from jara_arm.services.runtime.wire import decode_sample
 
 from .errors import MotionFailed, NoAnswer
@@ -41,22 +42,25 @@ class Fate(enum.Enum):
         return self in (Fate.DONE, Fate.DISCARDED)
 
 
-class Tracker:
-    """The arm's ``Planner/progress``, read on demand (no thread of its own); the fates of the motions
-    handed out as :class:`Motion`. Thread-safe."""
+class ProgressBook:
+    """The fates of the motions followed, from the ``Planner/progress`` reports :meth:`offer` is given (no I/O:
+    :class:`Tracker` feeds it from the network; a test by hand), and the share of its samples each one had
+    passed when last reported running. Thread-safe."""
 
-    def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
-        self._sub = session.declare_subscriber(keys.planner_progress, zenoh.handlers.FifoChannel(_FIFO))
+    def __init__(self) -> None:
         self._lock = threading.Lock()
         self._last: PlannerProgress | None = None
         self._fates: dict[int, Fate] = {}
-
-    def close(self) -> None:
-        self._sub.undeclare()
+        self._shares: dict[int, float] = {}  # [-] per motion followed: its runningShare when last reported running
 
     def follow(self, motion: int) -> None:
         with self._lock:
             self._fates.setdefault(motion, Fate.WAITING)
+
+    def offer(self, report: PlannerProgress) -> None:
+        """Take ``report`` if it is the newest yet (or the newest state reported again later)."""
+        with self._lock:
+            self._offer(report)
 
     def fate(self, motion: int) -> Fate:
         """Where ``motion`` is now, from every report received so far."""
@@ -64,19 +68,31 @@ class Tracker:
             self._drain()
             return self._fates[motion]
 
+    def progress(self, motion: int) -> float:
+        """[-] 0 .. 1: 1.0 once ``motion`` is done, else the share it had run when last reported running
+        (0.0 before it ran)."""
+        with self._lock:
+            self._drain()
+            if self._fates[motion] is Fate.DONE:
+                return 1.0
+            return self._shares.get(motion, 0.0)
+
     def newest(self) -> PlannerProgress | None:
         with self._lock:
             self._drain()
             return self._last
 
     def _drain(self) -> None:
-        while (sample := self._sub.try_recv()) is not None:
-            try:
-                report = decode_sample(PLANNER_PROGRESS, sample)
-            except Exception:  # a malformed report says nothing about our motions
-                continue
-            if is_newer(report, self._last):
-                self._take(report)
+        """Take the reports received since (lock held): none here, :class:`Tracker`'s from its subscription."""
+
+    def _offer(self, report: PlannerProgress) -> None:
+        """(lock held) A newer state goes through :meth:`_take`; the same one reported later (``seq`` does
+        not count ``runningShare``) only renews the running motion's share."""
+        if is_newer(report, self._last):
+            self._take(report)
+        elif refreshes(report, self._last):
+            self._last = report
+            self._note_share(report)
 
     def _take(self, new: PlannerProgress) -> None:
         old, self._last = self._last, new
@@ -99,6 +115,13 @@ class Tracker:
                 self._fates[motion] = Fate.DONE
             else:
                 self._fates[motion] = Fate.DISCARDED
+        self._note_share(new)
+
+    def _note_share(self, report: PlannerProgress) -> None:
+        """Keep the running motion's share if it is followed and not ended (lock held)."""
+        motion = report.running
+        if motion and self._fates.get(motion) is Fate.RUNNING:
+            self._shares[motion] = min(1.0, max(0.0, report.runningShare))
 
     def wait(self, motion: int, timeout: float | None) -> Fate:
         """Until ``motion`` has ended or ``timeout`` [s] (None: no end) passed; its fate then."""
@@ -112,10 +135,30 @@ class Tracker:
             time.sleep(0.005)  # the reports come in a channel: a short poll, no callback work
 
 
-class Motion:
-    """An accepted motion: :meth:`wait` for its end, :attr:`fate` and :attr:`done` meanwhile."""
+class Tracker(ProgressBook):
+    """The arm's ``Planner/progress``, read on demand (no thread of its own); the fates of the motions
+    handed out as :class:`Motion`. Thread-safe."""
 
-    def __init__(self, tracker: Tracker, motion: int, op: str, explain: Callable[[], tuple[str, ...]]) -> None:
+    def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
+        super().__init__()
+        self._sub = session.declare_subscriber(keys.planner_progress, zenoh.handlers.FifoChannel(_FIFO))
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+    def _drain(self) -> None:
+        while (sample := self._sub.try_recv()) is not None:
+            try:
+                report = decode_sample(PLANNER_PROGRESS, sample)
+            except Exception:  # a malformed report says nothing about our motions
+                continue
+            self._offer(report)
+
+
+class Motion:
+    """An accepted motion: :meth:`wait` for its end, :attr:`fate`, :attr:`progress` and :attr:`done` meanwhile."""
+
+    def __init__(self, tracker: ProgressBook, motion: int, op: str, explain: Callable[[], tuple[str, ...]]) -> None:
         """``explain``: the arm's active alarms as text, asked when the motion turns out discarded."""
         self.id = motion
         self.op = op
@@ -126,6 +169,15 @@ class Motion:
     @property
     def fate(self) -> Fate:
         return self._tracker.fate(self.id)
+
+    @property
+    def progress(self) -> float:
+        """[-] 0.0 .. 1.0, the share of the motion done, as the servo's interpolator reports it (at least every
+        0.1 s, relayed on ``Planner/progress``): 0.0 while waiting or queued, while running the share of its
+        samples passed (of its planned time, not of its length: a move's slow start and end cover less path
+        per sample), 1.0 once done. Paused (its fate is queued again) or discarded (a stop, an alarm), it
+        stays at the share it had reached when last reported running."""
+        return self._tracker.progress(self.id)
 
     @property
     def done(self) -> bool:
@@ -149,4 +201,4 @@ class Motion:
         return f"Motion({self.id}, {self.op}, {self.fate.value})"
 
 
-__all__ = ["Fate", "Motion", "Tracker"]
+__all__ = ["Fate", "Motion", "ProgressBook", "Tracker"]

@@ -128,6 +128,9 @@ class MotionProgress:
     tail: tuple[float, ...] = wire(w.DOUBLE_SEQ, "rad or m")
     started: Time = wire(w.TIME)  # when this servo process started: a restarted servo is newer
     seq: int = wire(w.ULONG)  # grows with every change of the members above but ``tm``, ``scale``
+    runningShare: float = wire(w.DOUBLE, "", "0 .. 1: the share of the running motion's samples passed (tau over "
+                               "its last sample's index), 0 when none runs; while it is a head (not final), of the "
+                               "samples known so far (its rest makes it fall); not counted in seq", default=0.0)
 
 
 MOTION_PROGRESS = struct(MotionProgress, strict=False, doc="Internal: servo -> planner, Servo/motion.")
@@ -138,6 +141,13 @@ def is_newer(candidate: MotionProgress, current: MotionProgress | None) -> bool:
     if current is None:
         return True
     return (candidate.started.to_seconds(), candidate.seq) > (current.started.to_seconds(), current.seq)
+
+
+def refreshes(candidate: MotionProgress, current: MotionProgress | None) -> bool:
+    """Whether ``candidate`` tells the same state as ``current`` (same ``started`` and ``seq``) later: its
+    ``tm`` and the members ``seq`` does not count (``scale``, ``runningShare``) are the newer ones."""
+    return (current is not None and candidate.started == current.started and candidate.seq == current.seq
+            and (candidate.tm.sec, candidate.tm.nsec) > (current.tm.sec, current.tm.nsec))
 
 
 @dataclasses.dataclass(frozen=True)

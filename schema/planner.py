@@ -16,7 +16,9 @@ Everything here lives under ``JARA_ARM/<arm>/Planner/``.
 Every reply carries the ``PlannerProgress`` the call left behind, and every
 progress message is numbered (``started``, ``seq``): a reader keeps the newest
 one it received by either way (:func:`is_newer`), and needs no other rule for
-a publication that arrives after a reply it already saw.
+a publication that arrives after a reply it already saw. ``runningShare``
+changes without a new ``seq``: a report of the same number but a later ``tm``
+(:func:`refreshes`) carries a newer one.
 """
 
 from __future__ import annotations
@@ -113,10 +115,13 @@ class PlannerProgress:
     paused: bool = wire(w.BOOLEAN)
     streaming: bool = wire(w.BOOLEAN)  # the servo's interpolator commands the arm (the name is older)
     started: Time = wire(w.TIME)  # when this planner process started: a restarted planner is newer
-    seq: int = wire(w.ULONG)  # grows with every change of the members above but ``tm``
+    seq: int = wire(w.ULONG)  # grows with every change of the other members but ``tm``, ``runningShare``
     override: float = wire(w.DOUBLE, "%", "the servo's speed override (Ext/setSpeedOverride)", default=100.0)
     capacity: int = wire(w.ULONG, "motions", "the queue holds at most this many; the next motion is refused "
                          "FULL_MOTION_QUEUE_ERR (planner --queue-capacity)", default=0)
+    runningShare: float = wire(w.DOUBLE, "", "0 .. 1: the share of the running motion's samples the servo has "
+                               "passed (of its planned time, not of its length; MotionProgress.runningShare), 0 "
+                               "when none runs; not counted in seq", default=0.0)
 
 
 PLANNER_PROGRESS = struct(PlannerProgress, strict=False, doc="Internal: planner -> everyone, Planner/progress.")
@@ -147,6 +152,13 @@ def is_newer(candidate: PlannerProgress, current: PlannerProgress | None) -> boo
         return True
     return ((candidate.started.to_seconds(), candidate.seq)
             > (current.started.to_seconds(), current.seq))
+
+
+def refreshes(candidate: PlannerProgress, current: PlannerProgress | None) -> bool:
+    """Whether ``candidate`` tells the same state as ``current`` (same ``started`` and ``seq``) later: its
+    ``tm`` and ``runningShare`` (which ``seq`` does not count) are the newer ones."""
+    return (current is not None and candidate.started == current.started and candidate.seq == current.seq
+            and (candidate.tm.sec, candidate.tm.nsec) > (current.tm.sec, current.tm.nsec))
 
 
 @dataclasses.dataclass(frozen=True)

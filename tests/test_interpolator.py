@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from jara_arm.schema.motion import MotionAction, TrajectoryRefusal
+from jara_arm.schema.types import Time
 from jara_arm.services.servo.interpolator import RATE_MAX, Interpolator, head_cap, prepare
 
 DT = 1e-3
@@ -160,3 +161,49 @@ def test_head_cap_is_zero_at_the_end_and_grows_with_what_is_left():
     assert head_cap(0.0, RATE_MAX) == 0.0
     caps = [head_cap(r, 5.0) for r in (0.001, 0.01, 0.1, 1.0)]
     assert caps == sorted(caps) and caps[-1] > 1.0
+
+
+def test_the_running_share_grows_from_0_to_1_along_a_motion_and_is_0_when_idle():
+    """``MotionProgress.runningShare`` is ``tau`` over the running motion's last sample index: 0 before and
+    after, growing every cycle it runs, held while paused; a change of it alone is no new state (``seq``)."""
+    rows = _rest_to_rest(np.zeros(2), np.array([0.5, -0.3]), 2.0)
+    it = Interpolator(2, DT)
+
+    def share() -> float:
+        return it.progress(it.state(rows[0]), Time.now(), 1).runningShare
+
+    assert share() == 0.0  # idle
+    assert it.submit(prepare(1, rows, True, DT, AMAX), it.epoch, 0, -1, rows[0], True)[0] is None
+    assert share() == 0.0
+    state = it.state(rows[0])
+    shares, held = [], []
+    for k in range(10_000):
+        if k == 100:
+            it.control(MotionAction.PAUSE)
+        if k == 1500:
+            it.control(MotionAction.RESUME)
+        if it.holding:
+            held.append(share())
+        else:
+            it.next()
+        if not it.active:
+            break
+        assert k >= 100 or it.state(rows[0]) == state  # the pause is a new state; the share alone never is
+        shares.append(share())
+        assert shares[-1] == pytest.approx(it.tau / (len(rows) - 1))
+    assert not it.active and it.last_done == 1
+    assert shares == sorted(shares) and 0.0 < shares[0] < 0.01 and 0.99 < shares[-1] < 1.0
+    assert len(held) > 100 and 0.1 < min(held) == max(held) < 0.9  # holding paused: the share holds too
+    assert share() == 0.0  # done: nothing runs
+
+
+def test_a_heads_share_is_of_its_samples_so_far_and_falls_when_its_rest_joins():
+    rows = _rest_to_rest(np.zeros(2), np.array([0.5, -0.3]), 1.0)
+    it = _buffered(rows[:200], final=False)
+    _run(it, limit=100)
+    head = it.progress(it.state(rows[0]), Time.now(), 1).runningShare
+    assert head == pytest.approx(it.tau / 199) and head > 0.1
+    refusal, why = it.submit(prepare(1, rows[199:], True, DT, AMAX), it.epoch, 1, 199, rows[0], True)
+    assert refusal is None, why
+    whole = it.progress(it.state(rows[0]), Time.now(), 1).runningShare
+    assert whole == pytest.approx(it.tau / (len(rows) - 1)) and whole < head

@@ -43,6 +43,7 @@ from jara_arm.schema.motion import (
     Trajectory,
     TrajectoryRefusal,
     is_newer,
+    refreshes,
 )
 from jara_arm.schema.planner import QUEUE_CAPACITY, ControlAction, PlannerProgress
 from jara_arm.schema.types import Time
@@ -301,8 +302,12 @@ class Handover:
             self._adopt(m)
 
     def _adopt(self, m: MotionProgress) -> bool:
-        """Keep ``m`` if it is the servo's newest; True if it was."""
+        """Keep ``m`` if it is the servo's newest; True if it was. One of the same state but later (its
+        ``runningShare`` newer) replaces the one kept, and wakes no one: nothing waited for changed."""
         with self._lock:
+            if refreshes(m, self._motion):
+                self._motion = m
+                return False
             if not is_newer(m, self._motion):
                 return False
             self._motion = m
@@ -333,22 +338,23 @@ class Handover:
         return () if m is None else tuple(i for i in m.queued if i != m.head)
 
     def _progress(self, now: float) -> PlannerProgress:
-        """The servo's progress as the planner's, numbered: ``seq`` grows when anything but the time
-        changed (lock held)."""
+        """The servo's progress as the planner's, numbered: ``seq`` grows when anything but the time and
+        ``runningShare`` changed (lock held)."""
         m = self._motion
         queued = self._queued()
         if m is None:
             running = done = discarded = 0
             paused = moving = False
-            override = 100.0
+            override, share = 100.0, 0.0
         else:
             running = m.running if m.moving and not m.stopping and m.running in queued else 0
             done, discarded, paused, moving, override = m.lastDone, m.lastDiscarded, m.paused, m.moving, m.override
+            share = m.runningShare if running else 0.0
         last = self._snapshot
         seq = last.seq if last is not None else 0
         progress = PlannerProgress(Time.from_seconds(now), running, queued, done, discarded, paused, moving,
-                                   self._started, seq, override, self.capacity)
-        if last is None or dataclasses.replace(progress, tm=last.tm) != last:
+                                   self._started, seq, override, self.capacity, share)
+        if last is None or dataclasses.replace(progress, tm=last.tm, runningShare=last.runningShare) != last:
             progress = dataclasses.replace(progress, seq=seq + 1)
         self._snapshot = progress
         return progress

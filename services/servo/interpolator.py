@@ -201,10 +201,13 @@ class Interpolator:
         return self._state
 
     def progress(self, state: tuple[object, ...], started: Time, seq: int) -> MotionProgress:
-        """``Servo/motion`` from :meth:`state`, of the servo process ``started``, numbered ``seq``."""
+        """``Servo/motion`` from :meth:`state`, of the servo process ``started``, numbered ``seq``; its
+        ``runningShare`` is ``tau`` over the running motion's last sample index (a head's known so far)."""
         epoch, queued, head, done, discarded, paused, moving, stopping, override, tail = state
+        end = self.queue[0].end if self.queue else 0
+        share = self.tau / end if end > 0 else 0.0
         return MotionProgress(Time.now(), epoch, self.running, queued, head, done, discarded, paused,
-                              moving, stopping, override * 100.0, self.scale, tail, started, seq)
+                              moving, stopping, override * 100.0, self.scale, tail, started, seq, share)
 
     # -- from the planner (called on the loop's thread, between cycles) ------------------
     def submit(self, traj: Buffered, epoch: int, after: int, splice: int, held: np.ndarray,

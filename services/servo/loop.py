@@ -593,7 +593,7 @@ class ServoLoop:
         return self._motion_progress()
 
     def _motion_progress(self) -> MotionProgress:
-        """The interpolator now, numbered (``seq`` grows on every change but of tm and scale)."""
+        """The interpolator now, numbered (``seq`` grows on every change but of tm, scale and runningShare)."""
         said = self.interp.state(self.law.q)
         if said != self._motion_said:
             self._motion_said = said
