@@ -172,11 +172,9 @@ def children(service: ServiceSpec, settings: UpSettings, bus: str) -> list[Child
 def output_of(supervisor: Supervisor, arm: str, service: str) -> list[str]:
     """The last lines the process of ``service`` for ``arm`` printed (one servo serves every arm; ``arm``
     "" for the gateway)."""
-    for child in supervisor.children:
-        if child.label == (label(service, arm) if arm else service):
-            return list(child.tail)
+    for child in supervisor.children:  # labels are label(service, "a1,a2") or the gateway's own
         name, _, arms = child.label.partition(" (")
-        if arm and name == service and arm in arms.rstrip(")").split(","):
+        if name == service and (not arm or arm in arms.rstrip(")").split(",")):
             return list(child.tail)
     return []
 

@@ -297,8 +297,8 @@ def run(service: ArmService, argv: Sequence[str] | None = None) -> int:
 
 
 #: A service that has not finished starting (session opened, parts declared, tokens declared, up lines
-#: said) this long after it began dumps every thread's stack to stderr (Python's ``faulthandler``: from a C thread, so also while a
-#: thread holds the GIL) [s]. A servo serving two arms once never declared its tokens beside a busy loop
+#: said) this long after it began dumps every thread's stack to stderr (Python's ``faulthandler``: from a
+#: C thread, so also while a thread holds the GIL) [s]. A servo serving two arms once never declared its tokens beside a busy loop
 #: per core, and said nothing more; the launcher shows a child's last lines when it is not ready
 #: (``jara-arm up``), so the dump names where it hangs. A start takes 2-7 s here beside busy loops.
 START_STUCK_AFTER = 20.0
