@@ -18,7 +18,8 @@ from collections.abc import Callable
 import zenoh
 
 from jara_arm.schema.keys import ArmKeys
-from jara_arm.schema.planner import PLANNER_PROGRESS, PlannerProgress, is_newer, refreshes
+from jara_arm.schema.motion import refreshes
+from jara_arm.schema.planner import PLANNER_PROGRESS, PlannerProgress, is_newer
 from jara_arm.services.runtime.wire import decode_sample
 
 from .errors import MotionFailed, NoAnswer

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -143,9 +143,20 @@ def is_newer(candidate: MotionProgress, current: MotionProgress | None) -> bool:
     return (candidate.started.to_seconds(), candidate.seq) > (current.started.to_seconds(), current.seq)
 
 
-def refreshes(candidate: MotionProgress, current: MotionProgress | None) -> bool:
+class Numbered(Protocol):
+    """A numbered snapshot: ``MotionProgress``, ``PlannerProgress``."""
+
+    @property
+    def tm(self) -> Time: ...
+    @property
+    def started(self) -> Time: ...
+    @property
+    def seq(self) -> int: ...
+
+
+def refreshes(candidate: Numbered, current: Numbered | None) -> bool:
     """Whether ``candidate`` tells the same state as ``current`` (same ``started`` and ``seq``) later: its
-    ``tm`` and the members ``seq`` does not count (``scale``, ``runningShare``) are the newer ones."""
+    ``tm`` and the members ``seq`` does not count (e.g. ``scale``, ``runningShare``) are the newer ones."""
     return (current is not None and candidate.started == current.started and candidate.seq == current.seq
             and (candidate.tm.sec, candidate.tm.nsec) > (current.tm.sec, current.tm.nsec))
 

@@ -18,7 +18,7 @@ progress message is numbered (``started``, ``seq``): a reader keeps the newest
 one it received by either way (:func:`is_newer`), and needs no other rule for
 a publication that arrives after a reply it already saw. ``runningShare``
 changes without a new ``seq``: a report of the same number but a later ``tm``
-(:func:`refreshes`) carries a newer one.
+(:func:`jara_arm.schema.motion.refreshes`) carries a newer one.
 """
 
 from __future__ import annotations
@@ -152,13 +152,6 @@ def is_newer(candidate: PlannerProgress, current: PlannerProgress | None) -> boo
         return True
     return ((candidate.started.to_seconds(), candidate.seq)
             > (current.started.to_seconds(), current.seq))
-
-
-def refreshes(candidate: PlannerProgress, current: PlannerProgress | None) -> bool:
-    """Whether ``candidate`` tells the same state as ``current`` (same ``started`` and ``seq``) later: its
-    ``tm`` and ``runningShare`` (which ``seq`` does not count) are the newer ones."""
-    return (current is not None and candidate.started == current.started and candidate.seq == current.seq
-            and (candidate.tm.sec, candidate.tm.nsec) > (current.tm.sec, current.tm.nsec))
 
 
 @dataclasses.dataclass(frozen=True)
