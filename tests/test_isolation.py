@@ -150,25 +150,32 @@ def test_through_the_gateway_the_feedback_is_every_sample_of_the_blocks_in_order
     missing, one per servo cycle."""
     c, _ = cell
     keys, session = c.client.keys, c.client.session
-    # The blocks first: the first sample the client gets is then in a block the test has.
-    with session.declare_subscriber(keys.pos_feedback_block, zenoh.handlers.FifoChannel(1 << 12)) as blocks, \
-            session.declare_subscriber(keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 15)) as fb:
-        c.swing(2.0)
-        got: list[bytes] = []
-        sent: list[bytes] = []
+    got: list[bytes] = []
+    sent: list[bytes] = []
 
-        def enough() -> bool:
-            while (s := fb.try_recv()) is not None:
-                got.append(s.payload.to_bytes())
-            return len(got) > 2000
-
-        wait_until(enough, 10, what="2,000 feedback samples through the gateway")
-        while (b := blocks.try_recv()) is not None:
+    def took_blocks(blocks: zenoh.Subscriber) -> bool:
+        for b in iter(blocks.try_recv, None):
             samples = messages.feedback_block_samples(b.payload.to_bytes())
             assert len(samples) == FEEDBACK_BLOCK_CYCLES
-            sent += samples
-    first = sent.index(got[0])  # the client's subscription came first: its first sample is in a block
-    run = got[:len(sent) - first]
+            sent.extend(samples)
+        return bool(sent)
+
+    def enough(fb: zenoh.Subscriber) -> bool:
+        got.extend(s.payload.to_bytes() for s in iter(fb.try_recv, None))
+        return len(got) > 2000
+
+    # The blocks first, until one came: the client's samples then start at most a few blocks earlier (the
+    # relay's queue may still hold blocks from before its publisher matched the client's subscription).
+    with session.declare_subscriber(keys.pos_feedback_block, zenoh.handlers.FifoChannel(1 << 12)) as blocks:
+        wait_until(lambda: took_blocks(blocks), 10, what="a block")
+        with session.declare_subscriber(keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 15)) as fb:
+            c.swing(2.0)
+            wait_until(lambda: enough(fb), 10, what="2,000 feedback samples through the gateway")
+        took_blocks(blocks)
+    start = next(i for i, s in enumerate(got) if s in sent)
+    assert start <= 4 * FEEDBACK_BLOCK_CYCLES, f"{start} samples before the first block the test has"
+    first = sent.index(got[start])
+    run = got[start:start + len(sent) - first]
     assert len(run) > 1000 and run == sent[first:first + len(run)]
     tm = np.array([[m["tm"]["sec"], m["tm"]["nsec"]] for m in map(msgpack.unpackb, run)], dtype=np.int64)
     ns = tm[:, 0] * 1_000_000_000 + tm[:, 1]
