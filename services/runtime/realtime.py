@@ -59,15 +59,17 @@ def realtime_process(priority: int, what: str, *, skip_caller: bool = False) -> 
         return 0
     if skip_caller:  # e.g. a thread that starts child processes: they would inherit SCHED_FIFO
         tids = [t for t in tids if t != threading.get_native_id()]
-    count = 0
+    tried = count = 0
     for tid in tids:
         try:
-            if os.sched_getscheduler(tid) == os.SCHED_OTHER and _set_fifo(tid, priority):
-                count += 1
+            if os.sched_getscheduler(tid) != os.SCHED_OTHER:
+                continue  # set before (e.g. the service's own call in its start): nothing to say again
+            tried += 1
+            count += _set_fifo(tid, priority)
         except OSError:  # the thread ended meanwhile
             continue
     if count:
         log.info("%s: %d threads run with SCHED_FIFO priority %d", what, count, priority)
-    else:
+    elif tried:
         log.warning("%s without real-time priority (no permission?): expect more latency", what)
     return count
