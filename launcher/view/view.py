@@ -38,9 +38,8 @@ import socket
 import sys
 import threading
 import time
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
-import viser
 import zenoh
 
 from jara_arm.robots import RobotModelError
@@ -60,7 +59,11 @@ from jara_arm.services.runtime.arguments import positive_float
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, listening
 from ..tools.arm_state import format_state, read_state
-from .scene import ArmScene, RobotGeometry
+
+if TYPE_CHECKING:  # viser, trimesh and Pinocchio take 0.7 s to import: only `jara-arm view` pays it, in View
+    import viser
+
+    from .scene import ArmScene
 
 log = logging.getLogger(__name__)
 
@@ -245,6 +248,8 @@ class ArmView:
                 return
             if self.scene is not None:
                 self.scene.remove()
+            from .scene import ArmScene, RobotGeometry
+
             self.scene = ArmScene(self._server.scene, f"/{self.arm}", RobotGeometry(model),
                                   offset=(0.0, SPACING * self.slot, 0.0))
             self.robot = world.robot
@@ -306,6 +311,8 @@ class View:
         self.settings = settings
         self._session = session
         check_port(settings.host, settings.port)
+        import viser
+
         with contextlib.redirect_stdout(io.StringIO()):  # viser's banner: run_view prints the URL itself
             self.server = viser.ViserServer(host=settings.host, port=settings.port, label="jara-arm view",
                                             verbose=False)

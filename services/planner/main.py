@@ -285,6 +285,7 @@ class PlannerProgram(ArmService):
                                         options.collision_margin)
         self._heads = MotionPlanner(model, obstacles=obstacles, collision_margin=options.collision_margin,
                                     early_start=options.early_start_ms * 1e-3)
+        self._planner.wait_started()  # it started above: its start overlapped the heads' (0.9 s and 0.3 s here)
 
     def start(self, ctx: ServiceContext) -> None:
         assert self._planner is not None and self._heads is not None  # before_session() ran

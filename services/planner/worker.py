@@ -89,18 +89,26 @@ class PlanningProcess:
         self._world = (tuple(obstacles), collision_margin)
         self._ctx = multiprocessing.get_context("spawn")
         self._lock = threading.Lock()  # one request at a time on the pipe
-        self._start()
+        self._spawn()
 
-    def _start(self) -> None:
+    def _spawn(self) -> None:
         self._preview_pending = False  # the child sends an accepted motion's preview after it
         self._conn, child = self._ctx.Pipe()
         self._proc = self._ctx.Process(target=_serve, args=(child, self.model, self._log_level, *self._world),
                                        name="jara-arm-planning", daemon=True)
         self._proc.start()
         child.close()
+        self._started = False
+
+    def wait_started(self) -> None:
+        """Until the child can plan (it imports its libraries and builds its kinematics meanwhile: the caller's
+        own start overlaps it); RuntimeError if it does not within a minute."""
+        if self._started:
+            return
         if not self._conn.poll(_START_TIMEOUT):
             raise RuntimeError(f"the planning process did not start within {_START_TIMEOUT:.0f} s")
         self._conn.recv()
+        self._started = True
 
     def plan(self, req: PlanRequest, start: Joints, previous: PlannedMotion | None = None,
              meanwhile: Callable[[], None] | None = None) -> PlannedMotion:
@@ -109,6 +117,7 @@ class PlanningProcess:
         thread while the child plans (the early start: the motion's head)."""
         with self._lock:
             try:
+                self.wait_started()
                 self._take_preview()  # a preview nobody asked for (the motion was not queued)
                 self._conn.send((req, start, previous))
                 if meanwhile is not None:
@@ -121,7 +130,7 @@ class PlanningProcess:
             except (EOFError, OSError, BrokenPipeError):
                 log.error("the planning process died (exit code %s); restarting it", self._proc.exitcode)
                 self._proc.join(timeout=1.0)
-                self._start()
+                self._spawn()  # the next plan() waits for it
                 raise PlanRefused(ReturnCode.NG, f"internal error: the planning process died while "
                                   f"planning {req.op}") from None
         if answer[0] == "ok":
