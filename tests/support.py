@@ -18,6 +18,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -208,6 +209,27 @@ def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: s
 
 
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
+
+
+def proc_alive(pid: int) -> bool:
+    """Running (not gone, not a zombie)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def processes_with(needle: str) -> list[int]:
+    """Live processes whose command line contains ``needle`` (e.g. the test's own port)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit() and int(d.name) != os.getpid():
+            with contextlib.suppress(OSError):
+                if needle in (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"):
+                    if proc_alive(int(d.name)):
+                        pids.append(int(d.name))
+    return pids
 
 
 def wait_recording(recorder: Proc, timeout: float = 30.0) -> None:

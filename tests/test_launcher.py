@@ -2,16 +2,12 @@
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import re
 import signal
 import socket
 import subprocess
-import sys
-from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
@@ -23,9 +19,10 @@ from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode
 from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.types import LimitValue
 
-from .support import Client, Proc, client_session, endpoint, free_port, wait_alive, wait_until
+from .harness import launched
+from .support import (LAUNCHER, Client, Proc, client_session, endpoint, free_port, proc_alive,
+                      processes_with, wait_alive, wait_until)
 
-LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 _STARTED = re.compile(r"started (\S+) \((\S+)\): pid (\d+)")
 
 
@@ -34,40 +31,6 @@ def started_pids(proc: Proc) -> list[tuple[str, str, int]]:
     return [(m[1], m[2], int(m[3])) for line in list(proc.lines) if (m := _STARTED.search(line))]
 
 
-def proc_alive(pid: int) -> bool:
-    """Running (not gone, not a zombie)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rsplit(")", 1)[1].split()[0] != "Z"
-
-
-def processes_with(needle: str) -> list[int]:
-    """Live processes whose command line contains ``needle`` (e.g. the test's own port)."""
-    pids = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit() and int(d.name) != os.getpid():
-            with contextlib.suppress(OSError):
-                if needle in (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"):
-                    if proc_alive(int(d.name)):
-                        pids.append(int(d.name))
-    return pids
-
-
-@contextlib.contextmanager
-def launcher(*args: str) -> Iterator[tuple[Proc, int]]:
-    """``jara-arm up`` on a port of its own, ready; stopped (and swept) afterwards."""
-    port = free_port()
-    proc = Proc([*LAUNCHER, "up", "--listen", endpoint(port), *args])
-    try:
-        proc.wait_for_line("jara-arm: ready", timeout=60)
-        yield proc, port
-    finally:
-        proc.stop(signal.SIGINT)
-        for pid in processes_with(f"127.0.0.1:{port}"):  # only after a failure
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
 
 
 def pid_of(proc: Proc, service: str, arm: str = "arm0") -> int:
@@ -77,7 +40,7 @@ def pid_of(proc: Proc, service: str, arm: str = "arm0") -> int:
 
 @pytest.mark.timeout(60)
 def test_up_serves_and_prints_logs() -> None:
-    with launcher() as (proc, port):
+    with launched() as (proc, port):
         proc.wait_for_line("arm0/servo: servo up", timeout=10)
         ready = [line for line in proc.lines if "ready" in line]
         assert len(ready) == 1, proc.output
@@ -90,7 +53,7 @@ def test_up_serves_and_prints_logs() -> None:
 
 @pytest.mark.timeout(90)
 def test_two_arms_with_their_own_robots() -> None:
-    with launcher("--arm", "a1", "--arm", "a2:panda") as (proc, port):
+    with launched("--arm", "a1", "--arm", "a2:panda") as (proc, port):
         ready = proc.wait_for_line("jara-arm: ready")
         assert "a1 (iiwa): servo" in ready and "a2 (panda): servo" in ready
         with client_session(port) as session:
@@ -108,7 +71,7 @@ def test_two_arms_with_their_own_robots() -> None:
 
 @pytest.mark.timeout(60)
 def test_killed_service_is_restarted() -> None:
-    with launcher() as (proc, port):
+    with launched() as (proc, port):
         proc.wait_for_line("arm0/servo: servo up", timeout=10)
         pid = pid_of(proc, "servo")
         mark = len(proc.lines)
@@ -125,7 +88,7 @@ def test_killed_service_is_restarted() -> None:
 
 @pytest.mark.timeout(90)
 def test_sigint_stops_every_child() -> None:
-    with launcher("--arm", "a1", "--arm", "a2") as (proc, port):
+    with launched("--arm", "a1", "--arm", "a2") as (proc, port):
         pids = [pid for _, _, pid in started_pids(proc)]
         assert len(pids) == 2 * len(NAMES) - 1 and all(proc_alive(p) for p in pids)  # one servo for both
         os.kill(proc.popen.pid, signal.SIGINT)
@@ -205,7 +168,7 @@ def test_children_connect_to_a_loopback_address() -> None:
 
 @pytest.mark.timeout(60)
 def test_children_exit_when_the_launcher_is_killed() -> None:
-    with launcher() as (proc, port):
+    with launched(checked=False) as (proc, port):
         pids = [pid for _, _, pid in started_pids(proc)]
         assert len(pids) == len(NAMES)
         os.kill(proc.popen.pid, signal.SIGKILL)  # no chance to stop them: --exit-with-parent does
@@ -292,7 +255,7 @@ def test_the_output_of_a_service_is_found_by_arm_also_in_the_one_servo_of_every_
 @pytest.mark.timeout(120)
 def test_up_with_the_demo_runs_it_clean_and_raises_no_alarm() -> None:
     """What a newcomer's first `make up` does: ready, the demo's every step ok, no alarm, no stall."""
-    with launcher("--demo") as (proc, port):
+    with launched("--demo") as (proc, port):
         proc.wait_for_line("demo done", timeout=90)
         out = proc.output
         assert "FAILED" not in out, out
@@ -304,7 +267,7 @@ def test_up_with_the_demo_runs_it_clean_and_raises_no_alarm() -> None:
 def test_a_motion_cut_short_by_an_alarm_is_a_warning_and_the_demo_says_failed() -> None:
     """An accepted motion that an e-stop cuts short: a 0x420 WARNING names it, and the demo, which checks
     every arrival, prints FAILED with what is left and exits non-zero."""
-    with launcher() as (proc, port):
+    with launched() as (proc, port):
         demo = Proc([*LAUNCHER, "demo", "--connect", endpoint(port)])
         try:
             demo.wait_for_line("movePTPJointRel(J1 +0.3)", timeout=60)  # accepted: under way for ~1 s
@@ -327,7 +290,7 @@ def test_a_motion_cut_short_by_an_alarm_is_a_warning_and_the_demo_says_failed() 
 @pytest.mark.timeout(120)
 def test_the_demo_says_plainly_when_the_arm_cannot_do_a_step() -> None:
     """An arm that refuses the motions: the demo prints FAILED with the reason and exits non-zero."""
-    with launcher() as (proc, port):
+    with launched() as (proc, port):
         with client_session(port) as session:
             # Soft limits far from every pose the demo goes to: its motions are refused.
             client = Client(session)
