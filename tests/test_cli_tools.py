@@ -219,8 +219,9 @@ def test_echo_prints_what_comes_as_json_lines(lone_session: zenoh.Session,
     settings = EchoSettings(f"{keys.root}/log/**", count=3, timeout=10.0, show_key=True)
     out: list[int] = []
 
-    def publish() -> None:  # once the subscriber is declared: echo's loop runs
-        time.sleep(0.3)
+    def publish() -> None:  # once echo's subscriber is declared: its loop runs
+        with lone_session.declare_publisher(keys.log()) as probe:
+            wait_until(lambda: probe.matching_status.matching, 10, 0.01, "echo's subscriber")
         lone_session.put(keys.log(), msgpack.packb({"msg": "packed"}))
         lone_session.put(keys.log(), json.dumps({"msg": "json"}), encoding=zenoh.Encoding.APPLICATION_JSON)
         lone_session.put(keys.log(), b"\xc1")  # undecodable: said on stderr, skipped

@@ -301,7 +301,7 @@ def test_record_writes_every_sample_of_the_arm_with_its_times(lone_session: zeno
     lone_session.put(k.estop, b"")
     lone_session.put(other.state, b'{"state": 1}', encoding=zenoh.Encoding.APPLICATION_JSON)  # not recorded
     feedback.undeclare()
-    time.sleep(1.5)  # one progress line at least
+    wait_until(lambda: "msg/s" in err.getvalue(), 10, 0.05, "a progress line")
     stop.set()
     thread.join(10)
     assert status == [0], err.getvalue()
@@ -459,7 +459,8 @@ def test_live_a_replay_into_a_router_without_arms_gives_subscribers_the_same_seq
         router.wait_for_line("ready", timeout=30)
         with client_session(port) as session:
             every = session.declare_subscriber("JARA_ARM/**", zenoh.handlers.FifoChannel(1_000_000))
-            time.sleep(0.5)
+            with client_session(port) as probe, probe.declare_publisher(low_rate[0]) as pub:
+                wait_until(lambda: pub.matching_status.matching, 10, 0.01, "the subscription at the router")
             run = Proc([*LAUNCHER, "replay", str(path), "--speed", "2", "--connect", endpoint(port)])
             assert run.popen.wait(240) == 0, run.output
             assert "replayed " in run.output and "not replayed" in run.output, run.output
