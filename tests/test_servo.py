@@ -216,15 +216,24 @@ def test_emergency_stop(rig: Rig):
 
 
 def test_servo_off_holds_and_ignores_commands(rig: Rig):
+    """Nothing moves; the servo's log says once that it drops the stream and why, and once, when the servo
+    is on again, how many it dropped."""
     assert rig.servo(OP.servoOFF).id == ReturnCode.OK
     assert rig.state() == 0
     held = rig.joints()
     received = rig.statuses.newest().received
+    mark = len(rig.proc.lines)
     path = min_jerk(held, held + 0.3, 0.3)
     rig.commands.stream(path)
     rig.took(received + len(path), "the commands streamed while off")
     assert np.abs(rig.joints() - held).max() < 1e-4
     assert rig.state() == 0
+    said = f"dropping the position commands of {rig.keys.pos_cmd}: the servo is off"
+    rig.proc.wait_for_line(said, timeout=5, start=mark)
+    assert sum(said in line for line in rig.proc.lines[mark:]) == 1, rig.log_tail()
+    assert rig.servo(OP.servoON).id == ReturnCode.OK
+    rig.proc.wait_for_line(f"dropped {len(path)} position command(s) of {rig.keys.pos_cmd} (the servo is off)",
+                           timeout=5, start=mark)
 
 
 def test_joint_soft_limit_is_the_last_line_of_defence(rig: Rig):

@@ -67,6 +67,7 @@ from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .alarms import AlarmState
 from .control import RAN_DRY, REST_SPEED, STOPPED, ControlLaw, Refusal
+from .dropped import DropRun
 from .interpolator import Interpolator, prepare
 from .monitor_watch import MonitorWatch
 from .world import World
@@ -152,6 +153,7 @@ class ServoLoop:
         self._pos_list: list[float] = pos.tolist()
         self._calls: collections.deque[tuple[Callable[[], Any], concurrent.futures.Future]] = collections.deque()
         self.received = self.underruns = self.dropped = 0
+        self._drops = DropRun(self._log, keys.pos_cmd)
 
         self._entities = Entities()
         enter = self._entities.enter_context
@@ -356,13 +358,16 @@ class ServoLoop:
         return True
 
     def _take_commands(self) -> None:
-        """Move what arrived into the FIFO (or drop it while commands are not accepted)."""
+        """Move what arrived into the FIFO (or drop it while commands are not accepted, said: ``dropped.py``)."""
         # One source moves the arm at a time: while motions are buffered, a client's stream is dropped.
-        accepting = self.servo_on and not self.alarmed and not self.interp.active
+        refused = ("the servo is off" if not self.servo_on else "an alarm is active" if self.alarmed else
+                   "a motion is running (one source moves the arm at a time)" if self.interp.active else None)
+        self._drops.holds(refused)
         while (sample := self._cmd_sub.try_recv()) is not None:
             self.received += 1
-            if not accepting:
+            if refused is not None:
                 self.dropped += 1
+                self._drops.drop(refused)
                 continue
             try:
                 msg = codec.decode_message(w.TIMED_JOINT_POS, sample.payload.to_bytes())
