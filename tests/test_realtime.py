@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import gc
+import logging
 import subprocess
 import sys
 
@@ -33,3 +35,23 @@ def test_without_permission_the_call_says_so() -> None:
     out = subprocess.run([sys.executable, "-c", CHILD, "100"], capture_output=True, text=True, timeout=30,
                          check=True).stdout
     assert "first 0" in out and "WARNING the first call without real-time priority (no permission?)" in out, out
+
+
+def test_a_long_collection_is_kept_in_the_callback_and_said_after(monkeypatch: pytest.MonkeyPatch,
+                                                                 caplog: pytest.LogCaptureFixture) -> None:
+    """The servo's GC watch logs nothing from inside the collection (a collection can start within a log
+    handler holding its lock: logging again from there deadlocked a servo's start) and says it on ``say()``."""
+    from jara_arm.services.servo import clock
+
+    monkeypatch.setattr(clock, "GC_PAUSE_LOGGED", 0.0)
+    watch = clock.GcWatch()
+    gc.callbacks.append(watch)
+    try:
+        with caplog.at_level(logging.WARNING, logger=clock.__name__):
+            gc.collect()
+            assert watch.long and not caplog.records, caplog.records
+            watch.say()
+    finally:
+        gc.callbacks.remove(watch)
+    assert not watch.long
+    assert any("garbage collection (generation 2" in r.getMessage() for r in caplog.records), caplog.records

@@ -17,6 +17,7 @@ and the launcher restarts it, every arm of it.
 
 from __future__ import annotations
 
+import collections
 import gc
 import logging
 import sys
@@ -43,11 +44,17 @@ GIL_SWITCH_INTERVAL = 0.0001
 GC_PAUSE_LOGGED = 0.002
 
 
-class _GcWatch:
-    """Times the process's garbage collections (``gc.callbacks``) and logs the long ones."""
+class GcWatch:
+    """Times the process's garbage collections (``gc.callbacks``) and keeps the long ones for :meth:`say`.
+
+    The callback itself never logs: a collection starts at any allocation, also inside a log handler
+    that holds its own lock, and logging from there again deadlocked that thread (a two-arm servo's
+    main thread, in ``Event.set`` of the Zenoh log handler, never declared its tokens: 2 of about 60
+    two-arm starts, 2026-11-27)."""
 
     def __init__(self) -> None:
         self._start = 0.0
+        self.long: collections.deque[tuple[int, int, float]] = collections.deque(maxlen=16)
 
     def __call__(self, phase: str, info: dict[str, int]) -> None:
         if phase == "start":
@@ -55,8 +62,14 @@ class _GcWatch:
             return
         pause = time.perf_counter() - self._start
         if pause > GC_PAUSE_LOGGED:
+            self.long.append((info.get("generation", -1), info.get("collected", 0), pause))
+
+    def say(self) -> None:
+        """Log the long collections kept since the last call (from a thread of the caller's, not the callback)."""
+        while self.long:
+            generation, collected, pause = self.long.popleft()
             log.warning("garbage collection (generation %d, %d objects collected) held the servo "
-                        "process %.1f ms", info.get("generation", -1), info.get("collected", 0), pause * 1e3)
+                        "process %.1f ms", generation, collected, pause * 1e3)
 
 
 class ServoClockError(ValueError):
@@ -79,7 +92,8 @@ class ServoClock:
         self._stop = threading.Event()
         self.failed: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="servo-clock", daemon=True)
-        gc.callbacks.append(_GcWatch())
+        self._gc = GcWatch()
+        gc.callbacks.append(self._gc)
 
     def start(self) -> None:
         self._thread.start()
@@ -115,6 +129,8 @@ class ServoClock:
                 waited = False
                 for loop in self.loops:
                     waited |= not loop.tick(next_ns + wall_offset, next_ns, behind)
+                if self._gc.long:
+                    self._gc.say()
                 if waited:
                     # The late commands were not sent yet, not lost: no catching up on them.
                     next_ns = now + period
