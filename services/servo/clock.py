@@ -49,8 +49,8 @@ class GcWatch:
 
     The callback itself never logs: a collection starts at any allocation, also inside a log handler
     that holds its own lock, and logging from there again deadlocked that thread (a two-arm servo's
-    main thread, in ``Event.set`` of the Zenoh log handler, never declared its tokens: 2 of about 60
-    two-arm starts, 2026-11-27)."""
+    main thread, in ``Event.set`` of the Zenoh log handler, never declared its tokens: 3 of about 100
+    two-arm starts over two sessions, 2026-11-27)."""
 
     def __init__(self) -> None:
         self._start = 0.0
