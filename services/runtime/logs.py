@@ -1,14 +1,17 @@
 """Python logging to stderr and to ``JARA_ARM/<arm>/log/<service>``.
 
-``emit`` only appends to a deque; a thread of its own publishes, so that a log
-call never blocks a Zenoh callback or the servo loop. The records are JSON
+``emit`` only puts the record on a ``queue.SimpleQueue``; a thread of its own
+publishes, so that a log call never blocks a Zenoh callback or the servo loop.
+``SimpleQueue.put`` is reentrant: a log call from code that interrupts ``emit``
+in the same thread (a signal handler, a ``gc`` callback) cannot deadlock it,
+as the servo's main thread once did on a ``threading.Event``'s lock. The records are JSON
 (``schema/keys.py``): any Zenoh tool prints them.
 """
 
 from __future__ import annotations
 
-import collections
 import logging
+import queue
 import sys
 import threading
 
@@ -21,7 +24,7 @@ from .entities import Entities
 from .wire import Publication
 
 FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
-_QUEUE_LIMIT = 10_000  # records kept while Zenoh is slow; the oldest are dropped
+_QUEUE_LIMIT = 10_000  # records kept while Zenoh is slow; newer ones are dropped
 
 
 def setup_stderr(level: str = "INFO") -> None:
@@ -50,9 +53,7 @@ class ZenohLogHandler(logging.Handler):
         # What close() needs exists before the first declaration: logging.shutdown() at exit
         # closes a handler whose __init__ failed too.
         self._entities = Entities()
-        self._pending: collections.deque[logging.LogRecord] = collections.deque(maxlen=_QUEUE_LIMIT)
-        self._wake = threading.Event()
-        self._closed = False
+        self._pending: queue.SimpleQueue[logging.LogRecord | None] = queue.SimpleQueue()  # None: closed
         self._thread = threading.Thread(target=self._run, name="log-publisher", daemon=True)
         # looked up by a record's arm, None when it names none (then the main publisher)
         self._by_arm: dict[str | None, Publication] = {
@@ -62,17 +63,12 @@ class ZenohLogHandler(logging.Handler):
         self._thread.start()
 
     def emit(self, record: logging.LogRecord) -> None:
-        self._pending.append(record)
-        self._wake.set()
+        if self._pending.qsize() < _QUEUE_LIMIT:
+            self._pending.put(record)
 
     def _run(self) -> None:
-        while True:
-            self._wake.wait(0.5)
-            self._wake.clear()
-            while self._pending:
-                self._publish(self._pending.popleft())
-            if self._closed:
-                return
+        while (record := self._pending.get()) is not None:
+            self._publish(record)
 
     def _publish(self, record: logging.LogRecord) -> None:
         try:
@@ -86,8 +82,7 @@ class ZenohLogHandler(logging.Handler):
             pass
 
     def close(self) -> None:
-        self._closed = True
-        self._wake.set()
+        self._pending.put(None)
         if self._thread.is_alive():  # not started if __init__ failed
             self._thread.join(timeout=2.0)
         self._entities.close()

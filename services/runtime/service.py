@@ -36,6 +36,7 @@ import faulthandler
 import gc
 import logging
 import os
+import queue
 import signal
 import sys
 import threading
@@ -242,25 +243,38 @@ def _depart(stop: threading.Event, heartbeat: Heartbeat, token: zenoh.Liveliness
 
 
 def stop_event(exit_with_parent: bool = False) -> threading.Event:
-    """An event set by SIGINT/SIGTERM (and by the parent's death, if asked)."""
+    """An event set by SIGINT/SIGTERM (and by the parent's death, if asked).
+
+    The signal handler only puts the signal on a ``queue.SimpleQueue`` (reentrant); a thread
+    logs it and sets the event. A handler that logged or set the event itself would run in the
+    main thread between two bytecodes, perhaps while that thread holds the event's or a log
+    handler's lock, and deadlock the shutdown.
+    """
     stop = threading.Event()
+    received: queue.SimpleQueue[int] = queue.SimpleQueue()
 
     def _handle(signum: int, _frame: object) -> None:
-        log.info("received %s, shutting down", signal.Signals(signum).name)
-        stop.set()
+        received.put(signum)
 
+    def _watch_signals() -> None:
+        while True:
+            signum = received.get()
+            log.info("received %s, shutting down", signal.Signals(signum).name)
+            stop.set()
+
+    threading.Thread(target=_watch_signals, name="signal-watch", daemon=True).start()
     signal.signal(signal.SIGINT, _handle)
     signal.signal(signal.SIGTERM, _handle)
     if exit_with_parent:
         parent = os.getppid()
 
-        def _watch() -> None:
+        def _watch_parent() -> None:
             while not stop.wait(0.5):
                 if os.getppid() != parent:
                     log.warning("launcher (pid %d) is gone, shutting down", parent)
                     stop.set()
 
-        threading.Thread(target=_watch, name="parent-watch", daemon=True).start()
+        threading.Thread(target=_watch_parent, name="parent-watch", daemon=True).start()
     return stop
 
 
