@@ -4,6 +4,8 @@ of two alarm lists is newer, and the servo's braking and glide."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -123,3 +125,39 @@ def test_braking_extrema_and_glide():
     assert steps[-1][3] and np.allclose(steps[-1][0], [0.02, -0.01])
     acc = np.array([s[2] for s in steps])
     assert np.abs(acc).max() <= np.pi**2 / 2 * 0.02 / 0.2**2 + 1e-9  # a gentle half cosine
+
+
+def test_a_latch_is_reported_again_on_each_list_that_does_not_hold_it():
+    """The servo's own alarm goes to the monitor when raised; a monitor list without it (the report was lost,
+    or a new monitor) makes the servo report it again, a list that holds it does not, and the monitor that
+    listed it releases it by listing it no more: evidence, not a timer."""
+    import logging
+
+    from jara_arm.schema.alarms import AlarmList, AlarmReport
+    from jara_arm.schema.codes import AlarmType
+    from jara_arm.services.servo.alarms import AlarmState
+
+    class Reports:
+        def __init__(self) -> None:
+            self.sent: list[AlarmReport] = []
+
+        def put_message(self, _kind: object, report: AlarmReport) -> None:
+            self.sent.append(report)
+
+    reports, stopped = Reports(), []
+    state = AlarmState(reports, logging.LoggerAdapter(logging.getLogger("test")), lambda code: True)  # type: ignore[arg-type]
+    state.latch(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, "e-stop")
+    assert len(reports.sent) == 1
+    first, second = Time(100, 0), Time(200, 0)
+    state.adopt(AlarmList(Time(101, 0), first, ()), stopped.append)  # lost, or the list crossed the report
+    assert len(reports.sent) == 2
+    listed = AlarmList(Time(102, 0), first, (reports.sent[0].alarm,))
+    state.adopt(listed, stopped.append)
+    state.adopt(dataclasses.replace(listed, tm=Time(103, 0)), stopped.append)
+    assert len(reports.sent) == 2 and not stopped  # held: said once, and the servo stopped for it already
+    state.adopt(AlarmList(Time(50, 0), second, ()), stopped.append)  # a new monitor (its clock may lag)
+    assert len(reports.sent) == 3 and int(AlarmCode.EMERGENCY_STOP) in state.latches
+    state.adopt(AlarmList(Time(51, 0), second, (reports.sent[0].alarm,)), stopped.append)
+    state.adopt(AlarmList(Time(52, 0), second, ()), stopped.append)  # the monitor that listed it cleared it
+    assert len(reports.sent) == 3 and not state.latches
+

@@ -220,6 +220,9 @@ def test_monitor_hung_by_sigstop(arm: AlarmArm):
         reply = arm.servo(OP.getActiveAlarm)  # the monitor does not answer: the servo's own, said so
         assert [a.code for a in reply["alarms"]] == [AlarmCode.MONITOR_HUNG, AlarmCode.MOTION_NOT_COMPLETED]
         assert "monitor" in reply.comment
+        through_command = arm.common(OP.getActiveAlarm)  # the command asks the monitor once, then the servo
+        assert [a.code for a in through_command["alarms"]] == [a.code for a in reply["alarms"]], through_command
+        assert "monitor" in through_command.comment, through_command
         kept = arm.servo(OP.clearAlarms)
         assert kept.id == ReturnCode.STATUS_ERR and "0x413" in kept.comment, kept
         assert not arm.servo(OP.getState)["state"] & StateBit.SERVO_ON

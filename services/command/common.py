@@ -64,8 +64,9 @@ class CommandCommon:
         if alarms is not None:
             self.core.state.on_alarms(alarms)
             return ok(alarms=alarms.alarms)
-        reply = self.core.monitor.call(OP.getActiveAlarm)
-        return reply if reply is not None else self.core.servo.call(OP.getActiveAlarm)
+        # The monitor did not answer within MONITOR_TIMEOUT: not asked again (its Common getActiveAlarm would
+        # keep the client waiting as long once more); the servo answers and says so (architecture.md, case 2).
+        return self.core.servo.call(OP.getActiveAlarm)
 
     def getFeedbackPosJoint(self) -> Reply:
         return self._feedback.joints()

@@ -4,7 +4,9 @@ The alarm monitor owns the arm's list (``schema/alarms.py``). What the servo
 detects itself (an e-stop put, a command that jumps or leaves the joint soft
 limits) it acts on in the same cycle (``loop.py``) and keeps as a *latch*,
 reported to the monitor on ``Monitor/report`` (again when its cause has gone,
-and again every ``REPORT_AGAIN`` until the monitor lists it). The servo follows
+and again on each list of the monitor's that does not hold it yet: the monitor
+publishes its list on every change and every ``LIST_PERIOD``, so a report lost
+while it was down or restarting is made again on its evidence, not on a timer). The servo follows
 the monitor's ``Monitor/alarms``: an alarm that appears there stops the arm (a
 FAULT also switches the servo off), and a latch is released once the monitor
 that listed it no longer does. While any latch or any listed alarm is active,
@@ -20,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import time
 from collections.abc import Callable
 
 from jara_arm.schema.alarms import ALARM_REPORT, AlarmList, AlarmReport, format_code, is_newer
@@ -29,11 +30,6 @@ from jara_arm.schema.keys import Service
 from jara_arm.schema.types import Alarm, Time
 from jara_arm.services.runtime.wire import Publication
 
-#: A latch the alarm monitor has not listed yet is reported again this often [s]
-#: (the monitor was down or restarted and lost it).
-REPORT_AGAIN = 0.5
-
-
 @dataclasses.dataclass
 class Latch:
     """An alarm the servo detected itself; it keeps the arm stopped until the monitor clears it."""
@@ -41,7 +37,6 @@ class Latch:
     alarm: Alarm
     present: bool  # the cause was present when last reported
     acked: Time | None = None  # ``started`` of the monitor whose list held it; None: not listed yet
-    reported_at: float = -float("inf")  # [s] monotonic time of the last report
 
 
 class AlarmState:
@@ -80,18 +75,16 @@ class AlarmState:
 
     def _report(self, latch: Latch) -> None:
         report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value)
-        latch.reported_at = time.monotonic()
         try:
             self._report_pub.put_message(ALARM_REPORT, report)
         except Exception as exc:  # a report that cannot be sent is sent again later
             self._log.warning("could not report alarm %s to the monitor: %s", format_code(latch.alarm.code), exc)
 
     def report_latches(self) -> None:
-        """Report every latch whose cause came or went, and again those not listed yet."""
-        now = time.monotonic()
+        """Report every latch whose cause came or went."""
         for code, latch in list(self.latches.items()):
             present = self._cause_present(code)
-            if present != latch.present or (latch.acked is None and now - latch.reported_at >= REPORT_AGAIN):
+            if present != latch.present:
                 latch.present = present
                 self._report(latch)
 
@@ -103,7 +96,7 @@ class AlarmState:
 
     def adopt(self, alarms: AlarmList, stop: Callable[[Alarm], None]) -> None:
         """Follow the monitor's list: ``stop`` for each alarm new there (not latched here), release the latches
-        it cleared."""
+        it cleared, report again those it does not hold yet (it lost the report, or the list crossed it)."""
         if not is_newer(alarms, self._monitor_list):
             return  # published before the one already adopted
         previous = self._monitor_list
@@ -115,9 +108,9 @@ class AlarmState:
             elif latch.acked == alarms.started:
                 del self.latches[code]
                 self._log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
-            elif previous is not None and alarms.started != previous.started:
-                latch.acked = None  # a new monitor: tell it at once
-                latch.reported_at = -float("inf")
+            else:  # not listed yet, or by a monitor before this one: tell this one
+                latch.acked = None
+                self._report(latch)
         before = {a.code for a in self.monitor_alarms}
         self.monitor_alarms = alarms.alarms
         for alarm in alarms.alarms:
@@ -142,4 +135,4 @@ class AlarmState:
         return cleared, kept
 
 
-__all__ = ["AlarmState", "Latch", "REPORT_AGAIN"]
+__all__ = ["AlarmState", "Latch"]
