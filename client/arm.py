@@ -18,7 +18,8 @@ from __future__ import annotations
 
 import contextlib
 import threading
-from collections.abc import Iterator, Mapping
+import time
+from collections.abc import Iterator, Mapping, Sequence
 from types import TracebackType
 from typing import Any
 
@@ -26,7 +27,7 @@ import zenoh
 
 from jara_arm.schema import codec
 from jara_arm.schema.codes import ReturnCode
-from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys
+from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys, Service
 from jara_arm.schema.operations import Interface, operation
 from jara_arm.schema.planner import accepted_motion
 from jara_arm.schema.types import Alarm, CarPosWithElbow, TimedJointPos, hg_matrix
@@ -90,6 +91,19 @@ class Arm(Operations):
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+    def wait_alive(self, services: Sequence[Service] = (Service.SERVO, Service.PLANNER, Service.COMMAND,
+                                                       Service.ALARM_MONITOR), timeout: float = 30.0) -> None:
+        """Until the liveliness token of each of the arm's ``services`` is up: they have started and answer
+        (connectivity, not health: ``getActiveAlarm`` says that). :class:`~.errors.NoAnswer` after ``timeout`` [s]."""
+        deadline = time.monotonic() + timeout
+        for service in services:
+            while not list(self.session.liveliness().get(self.keys.alive(service),
+                                                         timeout=max(0.1, min(1.0, deadline - time.monotonic())))):
+                if time.monotonic() > deadline:
+                    raise NoAnswer(f"{service.value} of {self.keys.arm} is not running (no liveliness token "
+                                   f"within {timeout:g} s)")
+                time.sleep(0.1)
 
     # -- the calls ------------------------------------------------------------------------
 

@@ -44,6 +44,16 @@ def test_no_router_is_a_no_answer_within_the_timeout() -> None:
         ClientArm.connect(endpoint(free_port()), timeout=0.5)
 
 
+def test_live_wait_alive_sees_the_services_and_names_one_that_is_not_there(api: ClientArm) -> None:
+    api.wait_alive(timeout=10.0)
+    other = ClientArm(api.session, "nosucharm", timeout=1.0)
+    try:
+        with pytest.raises(NoAnswer, match="servo of nosucharm is not running"):
+            other.wait_alive(timeout=0.3)
+    finally:
+        other.close()
+
+
 def test_live_typed_calls_and_a_refusal_with_its_code(api: ClientArm, arm: LiveArm) -> None:
     info = api.getManipInfo()
     assert info.axisNum == arm.model.axis_num and api.state & StateBit.SERVO_ON

@@ -25,7 +25,6 @@ from jara_arm.schema.keys import DEFAULT_ARM, Service
 from ..command import Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, open_session
 from ..stop_signals import StopSignals
-from .client import ArmClient, ClientError
 
 SPEED_JOINT = 40  # [%]
 SPEED_CARTESIAN = 60  # [%] of 0.25 m/s by default
@@ -122,7 +121,7 @@ class Demo:
 def run_demo(arm: Arm, out: TextIO) -> int:
     """The sequence; returns the number of steps that did not do what they should."""
     d = Demo(arm, out)
-    ArmClient(arm.session, arm.keys.arm).wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
+    arm.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
     info = arm.getManipInfo()
     d.say(f"arm {arm.keys.arm}: {info.manufactur} {info.type}, {info.axisNum} axes"
           f"{' + gripper' if info.isGripper else ''}, cycle {info.cmdCycle} ms")
@@ -190,7 +189,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
         try:
             with Arm(session, args.arm) as arm:
                 return 1 if run_demo(arm, sys.stdout) else 0
-        except (ClientError, ArmError) as exc:
+        except ArmError as exc:
             print(f"{parser.prog}: {exc}", file=sys.stderr)
             return 1
 
