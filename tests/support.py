@@ -211,6 +211,18 @@ def wait_until(predicate, timeout: float = 10.0, interval: float = 0.02, what: s
 LAUNCHER = [sys.executable, "-m", "jara_arm.launcher"]
 
 
+@contextlib.contextmanager
+def busy_loops() -> Iterator[None]:
+    """A normal-priority busy loop per core while inside: the vision, UI and logging a cell's PC also runs."""
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
+    try:
+        yield
+    finally:
+        for h in hogs:
+            h.kill()
+            h.wait()
+
+
 def proc_alive(pid: int) -> bool:
     """Running (not gone, not a zombie)."""
     try:

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 
@@ -30,7 +28,7 @@ from jara_arm.schema.planner import (
 from jara_arm.schema.types import CarPosWithElbow, LimitValue
 
 from .planner_rig import Answer, PlannerRig, start_rig
-from .support import car, pose, rot_z, segment_distance, wait_until
+from .support import busy_loops, car, pose, rot_z, segment_distance, wait_until
 
 pytestmark = pytest.mark.timeout(120)
 DT = 1e-3
@@ -278,8 +276,7 @@ class TestIiwa:
     def test_a_lin_from_rest_beside_a_busy_loop_has_no_speed_dip(self, rig: PlannerRig):
         """The early start's head, beside a busy loop on every core: the measured speed rises once and falls
         once; no braking on the head and starting again."""
-        hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(os.cpu_count() or 1)]
-        try:
+        with busy_loops():
             for k in range(3):
                 T0 = rig.fk(rig.joints())
                 a = T0[:3, 3]
@@ -297,10 +294,6 @@ class TestIiwa:
                 dips = [i for i in np.flatnonzero((v < 0.5 * reached) & (reached > 0.02))
                         if v[i:].max() > v[i] + 0.25 * reached[i]]
                 assert not dips, f"LIN {k}: speed fell to {v[dips[0]]:.3f} of {reached[dips[0]]:.3f} m/s and rose again"
-        finally:
-            for h in hogs:
-                h.kill()
-                h.wait()
 
     def test_stop_discards_the_queue(self, rig: PlannerRig):
         T0 = rig.fk(rig.joints())

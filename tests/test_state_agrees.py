@@ -18,7 +18,7 @@ from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import OP
 
 from .harness import launched
-from .support import Proc, client_session, wait_until
+from .support import Proc, busy_loops, client_session, wait_until
 
 ROUNDS = 50
 POWER_ROUNDS = 20
@@ -59,7 +59,13 @@ def test_right_after_a_servo_on_or_off_reply_the_state_shows_it(
 
 def test_once_a_fault_is_listed_the_state_says_alarm_and_servo_off(
         system: tuple[Proc, zenoh.Session, ArmClient]) -> None:
+    """50 e-stops, a busy loop on every core (where the state once lagged the list), both read in a loop."""
     proc, session, client = system
+    with busy_loops():
+        _estops(proc, session, client)
+
+
+def _estops(proc: Proc, session: zenoh.Session, client: ArmClient) -> None:
     disagreements: list[str] = []
     faults = 0
     for k in range(ROUNDS):
