@@ -10,6 +10,7 @@ followed was discarded. How far the running one has come is the servo's own coun
 
 from __future__ import annotations
 
+import collections
 import enum
 import threading
 import time
@@ -24,7 +25,7 @@ from jara_arm.services.runtime.wire import decode_sample
 
 from .errors import MotionFailed, NoAnswer
 
-#: Reports kept while nobody reads them: the planner publishes on every change and every 0.1 s.
+#: Reports held while the tracker's thread is busy: the planner publishes on every change and every 0.1 s.
 _FIFO = 4096
 
 
@@ -46,17 +47,36 @@ class Fate(enum.Enum):
 class ProgressBook:
     """The fates of the motions followed, from the ``Planner/progress`` reports :meth:`offer` is given (no I/O:
     :class:`Tracker` feeds it from the network; a test by hand), and the share of its samples each one had
-    passed when last reported running. Thread-safe."""
+    passed when last reported running. Thread-safe.
+
+    A motion is judged on each change of state the reports show (its end is read from the counters
+    ``lastDone``/``lastDiscarded`` as they move). The last ``HISTORY`` changes are kept, and a motion
+    followed after its reports came (a move's reply arrives after the first report naming it) is judged
+    on them too."""
+
+    #: The changes of state kept for a motion followed late: at 10 or more reports a second, seconds of them.
+    HISTORY = 256
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._last: PlannerProgress | None = None
+        self._changes: collections.deque[tuple[PlannerProgress | None, PlannerProgress]] = collections.deque(
+            maxlen=self.HISTORY)
         self._fates: dict[int, Fate] = {}
         self._shares: dict[int, float] = {}  # [-] per motion followed: its runningShare when last reported running
 
     def follow(self, motion: int) -> None:
         with self._lock:
-            self._fates.setdefault(motion, Fate.WAITING)
+            if motion in self._fates:
+                return
+            fate = Fate.WAITING
+            for old, new in self._changes:
+                fate = _judged(motion, fate, old, new)
+                if fate is Fate.RUNNING and new.running == motion:
+                    self._shares[motion] = min(1.0, max(0.0, new.runningShare))
+            self._fates[motion] = fate
+            if self._last is not None:
+                self._note_share(self._last)
 
     def offer(self, report: PlannerProgress) -> None:
         """Take ``report`` if it is the newest yet (or the newest state reported again later)."""
@@ -66,25 +86,19 @@ class ProgressBook:
     def fate(self, motion: int) -> Fate:
         """Where ``motion`` is now, from every report received so far."""
         with self._lock:
-            self._drain()
             return self._fates[motion]
 
     def progress(self, motion: int) -> float:
         """[-] 0 .. 1: 1.0 once ``motion`` is done, else the share it had run when last reported running
         (0.0 before it ran)."""
         with self._lock:
-            self._drain()
             if self._fates[motion] is Fate.DONE:
                 return 1.0
             return self._shares.get(motion, 0.0)
 
     def newest(self) -> PlannerProgress | None:
         with self._lock:
-            self._drain()
             return self._last
-
-    def _drain(self) -> None:
-        """Take the reports received since (lock held): none here, :class:`Tracker`'s from its subscription."""
 
     def _offer(self, report: PlannerProgress) -> None:
         """(lock held) A newer state goes through :meth:`_take`; the same one reported later (``seq`` does
@@ -97,25 +111,9 @@ class ProgressBook:
 
     def _take(self, new: PlannerProgress) -> None:
         old, self._last = self._last, new
-        restarted = old is not None and new.started != old.started
-        seen = max((new.running, new.lastDone, new.lastDiscarded, *new.queued), default=0)
+        self._changes.append((old, new))
         for motion, fate in self._fates.items():
-            if fate.ended:
-                continue
-            if restarted and fate is not Fate.WAITING:
-                self._fates[motion] = Fate.DISCARDED
-            elif new.running == motion:
-                self._fates[motion] = Fate.RUNNING
-            elif motion in new.queued:
-                self._fates[motion] = Fate.QUEUED
-            elif motion > seen:
-                continue  # accepted, not reported yet
-            elif new.lastDiscarded >= motion and (old is None or old.lastDiscarded < motion):
-                self._fates[motion] = Fate.DISCARDED
-            elif new.lastDone >= motion:
-                self._fates[motion] = Fate.DONE
-            else:
-                self._fates[motion] = Fate.DISCARDED
+            self._fates[motion] = _judged(motion, fate, old, new)
         self._note_share(new)
 
     def _note_share(self, report: PlannerProgress) -> None:
@@ -136,24 +134,52 @@ class ProgressBook:
             time.sleep(0.005)  # the reports come in a channel: a short poll, no callback work
 
 
+def _judged(motion: int, fate: Fate, old: PlannerProgress | None, new: PlannerProgress) -> Fate:
+    """``motion``'s fate after the change of state from ``old`` to ``new`` (``fate``: before it)."""
+    if fate.ended:
+        return fate
+    if old is not None and new.started != old.started and fate is not Fate.WAITING:
+        return Fate.DISCARDED  # a new planner: what the one before had queued is gone
+    if new.running == motion:
+        return Fate.RUNNING
+    if motion in new.queued:
+        return Fate.QUEUED
+    if motion > max((new.running, new.lastDone, new.lastDiscarded, *new.queued), default=0):
+        return fate  # accepted, not reported yet
+    if new.lastDiscarded >= motion and (old is None or old.lastDiscarded < motion):
+        return Fate.DISCARDED
+    if new.lastDone >= motion:
+        return Fate.DONE
+    return Fate.DISCARDED
+
+
 class Tracker(ProgressBook):
-    """The arm's ``Planner/progress``, read on demand (no thread of its own); the fates of the motions
-    handed out as :class:`Motion`. Thread-safe."""
+    """The arm's ``Planner/progress``, taken by a thread of its own as it comes; the fates of the motions
+    handed out as :class:`Motion`. Thread-safe.
+
+    The thread keeps the channel empty: a full ``FifoChannel`` blocks the session's own thread, and with it
+    every reply to this client (an arm left open, not moving, stopped answering after 4,096 reports: 7 min)."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys) -> None:
         super().__init__()
         self._sub = session.declare_subscriber(keys.planner_progress, zenoh.handlers.FifoChannel(_FIFO))
+        self._thread = threading.Thread(target=self._take_reports, name=f"progress-{keys.arm}", daemon=True)
+        self._thread.start()
 
     def close(self) -> None:
-        self._sub.undeclare()
+        self._sub.undeclare()  # ends the thread's iteration
+        self._thread.join(timeout=2.0)
 
-    def _drain(self) -> None:
-        while (sample := self._sub.try_recv()) is not None:
-            try:
-                report = decode_sample(PLANNER_PROGRESS, sample)
-            except Exception:  # a malformed report says nothing about our motions
-                continue
-            self._offer(report)
+    def _take_reports(self) -> None:
+        try:
+            for sample in self._sub:
+                try:
+                    report = decode_sample(PLANNER_PROGRESS, sample)
+                except Exception:  # a malformed report says nothing about our motions
+                    continue
+                self.offer(report)
+        except Exception:  # the subscriber undeclared, the session closed: nothing more comes
+            return
 
 
 class Motion:

@@ -5,6 +5,7 @@ needs no system."""
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 
 import numpy as np
@@ -52,6 +53,23 @@ def test_live_wait_alive_sees_the_services_and_names_one_that_is_not_there(api: 
             other.wait_alive(timeout=0.3)
     finally:
         other.close()
+
+
+def test_live_an_arm_left_open_without_moving_still_answers(arm: LiveArm, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Nobody asks a motion's fate for longer than the progress channel holds (4,096 reports, 7 min; 8 here):
+    the tracker's thread keeps it empty, so the session's thread never blocks on it and calls are answered."""
+    from jara_arm.client import motion
+
+    monkeypatch.setattr(motion, "_FIFO", 8)
+    seen = threading.Semaphore(0)
+    counter = arm.session.declare_subscriber(arm.keys.planner_progress, lambda _s: seen.release())
+    try:
+        with ClientArm.connect(arm.endpoint, timeout=5.0) as idle:
+            for _ in range(40):  # five times what the channel holds, published 10 a second at rest
+                assert seen.acquire(timeout=5.0), "no Planner/progress report within 5 s"
+            assert idle.getState() & StateBit.SERVO_ON
+    finally:
+        counter.undeclare()
 
 
 def test_live_typed_calls_and_a_refusal_with_its_code(api: ClientArm, arm: LiveArm) -> None:

@@ -59,6 +59,20 @@ def test_a_paused_or_discarded_motion_keeps_the_share_it_had_reached():
         motion.wait(timeout=0.1)
 
 
+def test_a_motion_followed_after_the_reports_that_named_it_is_judged_on_them():
+    """The tracker's thread takes reports as they come, so the one that discarded a motion may come before
+    the move's reply (and the ``follow``); a later motion done must not make it look done."""
+    book = ProgressBook()
+    book.offer(report(1, running=5, queued=(5,), share=0.3))
+    book.offer(report(2, discarded=5))
+    book.offer(report(3, running=6, queued=(6,)))
+    book.offer(report(4, done=6, discarded=5))
+    late = Motion(book, 5, "movePTPJointRel", lambda: ())
+    assert (late.fate, late.progress) == (Fate.DISCARDED, 0.3)
+    assert Motion(book, 6, "movePTPJointRel", lambda: ()).fate is Fate.DONE
+    assert Motion(book, 7, "movePTPJointRel", lambda: ()).fate is Fate.WAITING  # not reported yet
+
+
 def test_an_older_peer_without_the_share_still_decodes():
     progress = report(2, running=5, queued=(5,), share=0.5)
     wire = PLANNER_PROGRESS.encode(progress)
