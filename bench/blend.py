@@ -35,13 +35,13 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _system import client, launched_system  # noqa: E402
 
 from jara_arm.kinematics import Kinematics  # noqa: E402
-from jara_arm.launcher.tools.client import ArmClient  # noqa: E402
+from jara_arm.client import Arm  # noqa: E402
 from jara_arm.robots import robot  # noqa: E402
 from jara_arm.schema import codec  # noqa: E402
 from jara_arm.schema import wire_types as w  # noqa: E402
 from jara_arm.schema.codes import ReturnCode  # noqa: E402
 from jara_arm.schema.keys import Service  # noqa: E402
-from jara_arm.schema.operations import OP  # noqa: E402
+from jara_arm.schema.operations import OP, Interface  # noqa: E402
 from jara_arm.schema.types import CarPosWithElbow, hg_matrix  # noqa: E402
 
 REST = 1e-6  # [rad] joints closer than this to the resting joints count as at rest
@@ -79,7 +79,7 @@ class Bench:
     """The system's client, its feedback and the cycle's poses."""
 
     def __init__(self, session: zenoh.Session, robot_name: str) -> None:
-        self.client = ArmClient(session)
+        self.client = Arm(session)
         self.model = robot(robot_name)
         self.kin = Kinematics(self.model)
         self.fb = session.declare_subscriber(self.client.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 18))
@@ -92,12 +92,12 @@ class Bench:
     def prepare(self) -> None:
         c = self.client
         c.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
-        self.ok(c.common(OP.servoON), OP.servoON)
-        self.ok(c.middle(OP.setSpeedJoint, {"spdRatio": 100}), OP.setSpeedJoint)
-        self.ok(c.middle(OP.setSpeedCartesian, {"spdRatio": 100}), OP.setSpeedCartesian)
-        self.ok(c.middle(OP.goHome), OP.goHome)
+        self.ok(c.call(Interface.COMMON, OP.servoON), OP.servoON)
+        self.ok(c.call(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 100}), OP.setSpeedJoint)
+        self.ok(c.call(Interface.MIDDLE, OP.setSpeedCartesian, {"spdRatio": 100}), OP.setSpeedCartesian)
+        self.ok(c.call(Interface.MIDDLE, OP.goHome), OP.goHome)
         c.wait_idle()
-        pos = c.middle(OP.getFeedbackPosCartesian)["pos"]
+        pos = c.call(Interface.MIDDLE, OP.getFeedbackPosCartesian)["pos"]
         carpos = np.asarray(pos.carPos)
         self.origin, self.rotation, self.elbow = carpos[:, 3].copy(), carpos[:, :3].copy(), float(pos.elbow)
 
@@ -108,11 +108,12 @@ class Bench:
         return self.origin + np.asarray(offset)
 
     def distance(self, d: float) -> None:
-        self.ok(self.client.ext(OP.setBlendDistance, {"distance": d}), OP.setBlendDistance)
+        self.ok(self.client.call(Interface.EXT, OP.setBlendDistance, {"distance": d}), OP.setBlendDistance)
 
     def to_start(self) -> None:
         self.distance(0.0)
-        self.ok(self.client.middle(OP.moveLinearCartesianAbs, {"carPoint": self.car(START)}), "to the start")
+        self.ok(self.client.call(Interface.MIDDLE, OP.moveLinearCartesianAbs, {"carPoint": self.car(START)}),
+                "to the start")
         self.client.wait_idle()
 
     def drain(self) -> None:
@@ -134,10 +135,11 @@ class Bench:
             # the corner before a motion is blended with the distance that motion is accepted with
             self.distance(0.0 if previous_stop else d)
             if step.via is None:
-                reply = self.client.middle(OP.moveLinearCartesianAbs, {"carPoint": self.car(step.target)})
+                reply = self.client.call(Interface.MIDDLE, OP.moveLinearCartesianAbs,
+                                         {"carPoint": self.car(step.target)})
             else:
-                reply = self.client.middle(OP.moveCircularCartesianAbs,
-                                           {"carPointR": self.car(step.via), "carPointT": self.car(step.target)})
+                reply = self.client.call(Interface.MIDDLE, OP.moveCircularCartesianAbs,
+                                         {"carPointR": self.car(step.via), "carPointT": self.car(step.target)})
             self.ok(reply, f"the motion to {step.target}")
             previous_stop = step.stop
         self.client.wait_idle()

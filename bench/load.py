@@ -26,10 +26,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _system import client, launched_system, percentile  # noqa: E402
 from soak import ArmTally, drive  # noqa: E402
 
-from jara_arm.launcher.tools.client import ArmClient  # noqa: E402
+from jara_arm.client import Arm  # noqa: E402
 from jara_arm.schema import messages  # noqa: E402
 from jara_arm.schema.keys import ArmKeys  # noqa: E402
-from jara_arm.schema.operations import OP  # noqa: E402
+from jara_arm.schema.operations import OP, Interface  # noqa: E402
 from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
 from jara_arm.services.runtime.zenoh_args import zenoh_config  # noqa: E402
 
@@ -41,7 +41,7 @@ def querier(port: int, arm: str, seconds: float, out: multiprocessing.Queue) -> 
     times: dict[str, list[float]] = {op: [] for op in OPS}
     errors = 0
     with zenoh.open(zenoh_config("client", connect=[f"tcp/127.0.0.1:{port}"])) as session:
-        arm_client = ArmClient(session, arm, timeout=5.0)
+        arm_client = Arm(session, arm, timeout=5.0)
         end = time.monotonic() + seconds
         k = 0
         while time.monotonic() < end:
@@ -49,7 +49,8 @@ def querier(port: int, arm: str, seconds: float, out: multiprocessing.Queue) -> 
             k += 1
             t0 = time.perf_counter()
             try:
-                reply = arm_client.middle(op) if op == OP.getFeedbackPosCartesian else arm_client.common(op)
+                interface = Interface.MIDDLE if op == OP.getFeedbackPosCartesian else Interface.COMMON
+                reply = arm_client.call(interface, op)
                 if reply.id != 0:
                     errors += 1
             except Exception:
@@ -89,7 +90,7 @@ def main() -> int:
             p.start()
         time.sleep(2.0)  # the clients' imports and sessions (not counted: each measures its own window)
         until = time.monotonic() + args.seconds
-        driver = threading.Thread(target=drive, args=(ArmClient(session, arm), args.robot, until, tally, stop))
+        driver = threading.Thread(target=drive, args=(Arm(session, arm), args.robot, until, tally, stop))
         driver.start()
         results = [out.get(timeout=args.seconds + 60) for _ in procs]
         for p in procs:

@@ -30,7 +30,7 @@ from _system import client, launched_system  # noqa: E402
 from soak import ArmTally, drive  # noqa: E402
 
 from jara_arm.launcher.record.recording import info  # noqa: E402
-from jara_arm.launcher.tools.client import ArmClient  # noqa: E402
+from jara_arm.client import Arm  # noqa: E402
 from jara_arm.schema import messages  # noqa: E402
 from jara_arm.schema.keys import ArmKeys, arm_of  # noqa: E402
 from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
@@ -45,7 +45,7 @@ def phase(session: zenoh.Session, arm_ids: list[str], robot: str, minutes: float
     subs = [session.declare_subscriber(ArmKeys(a).servo_health, healths.append) for a in arm_ids]
     until = time.monotonic() + minutes * 60.0
     stop = threading.Event()
-    drivers = [threading.Thread(target=drive, args=(ArmClient(session, a), robot, until, tallies[a], stop))
+    drivers = [threading.Thread(target=drive, args=(Arm(session, a), robot, until, tallies[a], stop))
                for a in arm_ids]
     for d in drivers:
         d.start()

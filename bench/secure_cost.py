@@ -26,9 +26,9 @@ import cpu  # noqa: E402
 from _system import launched_system  # noqa: E402
 
 from jara_arm.launcher.secure.certs import init_cell, issue  # noqa: E402
-from jara_arm.launcher.tools.client import ArmClient  # noqa: E402
+from jara_arm.client import Arm  # noqa: E402
 from jara_arm.robots import robot  # noqa: E402
-from jara_arm.schema.operations import OP  # noqa: E402
+from jara_arm.schema.operations import OP, Interface  # noqa: E402
 from jara_arm.schema.roles import Role  # noqa: E402
 from jara_arm.services.runtime.zenoh_args import zenoh_config  # noqa: E402
 
@@ -37,18 +37,18 @@ MODEL = robot("iiwa")
 
 def drive(session: zenoh.Session, stop: threading.Event) -> int:
     """PTP back and forth, one motion queued ahead; returns the motions sent."""
-    arm = ArmClient(session)
-    assert arm.common(OP.servoON).ok
-    assert arm.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
+    arm = Arm(session)
+    assert arm.call(Interface.COMMON, OP.servoON).ok
+    assert arm.call(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": 100}).ok
     a, b = list(MODEL.ready_pose), list(MODEL.ready_pose)
     b[0] += 0.8
     sent = 0
     while not stop.is_set():
-        if arm.state() & 0x02 and sent:  # moving: keep one queued, no more
+        if arm.state & 0x02 and sent:  # moving: keep one queued, no more
             time.sleep(0.05)
             continue
         for target in (b, a):
-            assert arm.middle(OP.movePTPJointAbs, {"jointPoints": target}).ok
+            assert arm.call(Interface.MIDDLE, OP.movePTPJointAbs, {"jointPoints": target}).ok
             sent += 1
     arm.close()
     return sent

@@ -41,13 +41,13 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _system import client, launched_system  # noqa: E402
 import cpu  # noqa: E402
 
-from jara_arm.launcher.tools.client import ArmClient, ClientError  # noqa: E402
+from jara_arm.client import Arm, NoAnswer  # noqa: E402
 from jara_arm.launcher.tools.watch import format_log  # noqa: E402
 from jara_arm.robots import robot  # noqa: E402
 from jara_arm.schema import codec, messages  # noqa: E402
 from jara_arm.schema.codes import ReturnCode, StateBit  # noqa: E402
 from jara_arm.schema.keys import ANY_ARM, ArmKeys, any_arm_alarm, any_arm_log, arm_of  # noqa: E402
-from jara_arm.schema.operations import OP  # noqa: E402
+from jara_arm.schema.operations import OP, Interface  # noqa: E402
 from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
 
 SPEED = 50  # [%] of the rated joint speeds
@@ -136,7 +136,7 @@ def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
     return tuple(a), tuple(b)
 
 
-def drive(arm: ArmClient, model_name: str, until: float, tally: ArmTally, stop: threading.Event) -> None:
+def drive(arm: Arm, model_name: str, until: float, tally: ArmTally, stop: threading.Event) -> None:
     """Keep ``arm`` moving until ``until`` (monotonic): the next motion is queued while one runs.
 
     The queue length comes from the arm's ``state`` publication (sent on every change).
@@ -149,8 +149,8 @@ def drive(arm: ArmClient, model_name: str, until: float, tally: ArmTally, stop: 
         tally.refused.append(f"{time.strftime('%H:%M:%S')} {what}")
 
     try:
-        for name, reply in (("servoON", arm.common(OP.servoON)),
-                            ("setSpeedJoint", arm.middle(OP.setSpeedJoint, {"spdRatio": SPEED}))):
+        for name, reply in (("servoON", arm.call(Interface.COMMON, OP.servoON)),
+                            ("setSpeedJoint", arm.call(Interface.MIDDLE, OP.setSpeedJoint, {"spdRatio": SPEED}))):
             if reply.id != ReturnCode.OK:
                 refused(f"{name}: {reply.id} {reply.comment}")
         sent = 0
@@ -163,7 +163,7 @@ def drive(arm: ArmClient, model_name: str, until: float, tally: ArmTally, stop: 
                     stop.wait(1.0)
                     continue
             if queue_length < 2:
-                reply = arm.middle(OP.movePTPJointAbs, {"jointPoints": targets[sent % 2]})
+                reply = arm.call(Interface.MIDDLE, OP.movePTPJointAbs, {"jointPoints": targets[sent % 2]})
                 if reply.id != ReturnCode.OK:
                     refused(f"movePTPJointAbs: {reply.id} {reply.comment}")
                     stop.wait(1.0)
@@ -173,7 +173,7 @@ def drive(arm: ArmClient, model_name: str, until: float, tally: ArmTally, stop: 
             stop.wait(0.05)
         arm.wait_idle(60.0)
         tally.motions = sent
-    except ClientError as exc:
+    except NoAnswer as exc:
         refused(str(exc))
     finally:
         states.undeclare()
@@ -256,7 +256,7 @@ def main() -> int:
         steal_stop = threading.Event()
         steal_thread = threading.Thread(target=record_steal, args=(steal, t_start, steal_stop), daemon=True)
         steal_thread.start()
-        drivers = [threading.Thread(target=drive, args=(ArmClient(session, a), args.robot, until, tallies[a], stop))
+        drivers = [threading.Thread(target=drive, args=(Arm(session, a), args.robot, until, tallies[a], stop))
                    for a in arm_ids]
         for d in drivers:
             d.start()

@@ -26,7 +26,7 @@ from typing import Any
 import zenoh
 
 from jara_arm.schema import codec
-from jara_arm.schema.codes import ReturnCode
+from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys, Service
 from jara_arm.schema.operations import Interface, operation
 from jara_arm.schema.planner import accepted_motion
@@ -114,12 +114,33 @@ class Arm(Operations):
                 asker = self._askers[key] = Asker(self.session, key, self.timeout)
             return asker
 
-    def _reply(self, interface: Interface, name: str, args: Mapping[str, Any]) -> codec.Reply:
+    def call(self, interface: Interface, name: str, args: Mapping[str, Any] | None = None, *,
+             servo: bool = False) -> codec.Reply:
+        """``name`` of ``interface`` by name, its reply whatever its RETURN_ID (for a tool that shows a refusal
+        as it came; the typed methods raise :class:`~.errors.Refused` instead). ``servo=True`` asks the low
+        level (``Servo/Common``) instead of the command service. :class:`~.errors.NoAnswer` when nobody answers."""
         op = operation(interface, name)
-        got = self._asker(self.keys.interface(interface, name)).ask(codec.encode_request(op, args))
+        key = self.keys.servo_common(name) if servo else self.keys.interface(interface, name)
+        got = self._asker(key).ask(codec.encode_request(op, args))
         if isinstance(got, Silence):
             raise NoAnswer(f"{name}: {got.why}")
-        reply = codec.decode_reply(op, got.payload, got.encoding)
+        return codec.decode_reply(op, got.payload, got.encoding)
+
+    def wait_idle(self, timeout: float = 60.0, poll: float = 0.02) -> float:
+        """Until the arm neither moves nor has queued motions (or is paused, or alarmed); the time waited [s].
+        :class:`~.errors.ArmError` if it still moves after ``timeout`` [s]."""
+        t0 = time.monotonic()
+        time.sleep(poll)
+        while True:
+            state = self.state
+            if not state & StateBit.MOVING or state & StateBit.PAUSED or state & StateBit.ALARM:
+                return time.monotonic() - t0
+            if time.monotonic() - t0 > timeout:
+                raise ArmError(f"the arm still moves after {timeout:g} s (state 0x{state:02x})")
+            time.sleep(poll)
+
+    def _reply(self, interface: Interface, name: str, args: Mapping[str, Any]) -> codec.Reply:
+        reply = self.call(interface, name, args)
         if not reply.ok:
             raise Refused(name, _code(reply.id), reply.comment)
         return reply

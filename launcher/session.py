@@ -16,12 +16,12 @@ from collections.abc import Iterator
 
 import zenoh
 
+from jara_arm.client import ArmError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, check_arm
 from jara_arm.services.runtime.cell import CellError
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
 from .stop_signals import StopSignals
-from .tools.client import ClientError
 from .up.router import DEFAULT_LISTEN, zerror_text
 
 
@@ -76,7 +76,7 @@ def listening(args: argparse.Namespace, parser: argparse.ArgumentParser,
         yield session, signals.stop
 
 
-def no_answer(args: argparse.Namespace, parser: argparse.ArgumentParser, exc: ClientError) -> int:
+def no_answer(args: argparse.Namespace, parser: argparse.ArgumentParser, exc: ArmError) -> int:
     """A query of the command that got no answer: why on stderr, exit 1."""
     # A router drops what a role may not do without a word to the client: silence.
     hint = (f" (in a secure cell this is also what identity {args.identity!r} gets for what its role "

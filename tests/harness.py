@@ -440,7 +440,7 @@ class LiveArm:
     # -- waits ------------------------------------------------------------------------
     def idle(self, timeout: float = 60.0) -> None:
         """Until the arm neither moves nor has motions queued, or is paused, or has an alarm
-        (``ArmClient.wait_idle``)."""
+        (``Arm.wait_idle``)."""
         self.client.wait_idle(timeout)
 
     def wait_rest(self, timeout: float = 10.0) -> None:

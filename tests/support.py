@@ -24,14 +24,15 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from jara_arm.client import Arm
 from jara_arm.launcher import cli
-from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.launcher.completion import bash_script
 from jara_arm.robots import RobotModel
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
-from jara_arm.schema.codec import Encoding
+from jara_arm.schema.codec import Encoding, Reply
 from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.operations import Interface
 from jara_arm.schema.planner import MotionRequest, MotionSettings
 from jara_arm.schema.types import CarPosWithElbow, CartesianSpeed, LimitValue
 from jara_arm.services.planner.request import PlanRequest
@@ -176,8 +177,21 @@ def wait_alive(session: zenoh.Session, arm: str, services: Sequence[Service],
     raise AssertionError(f"services not alive within {timeout} s: {sorted(missing)}")
 
 
-class Client(ArmClient):
-    """The package's client plus raw queries (arbitrary payloads, for bad-input tests)."""
+class Client(Arm):
+    """The public client (``jara_arm.client.Arm``) with the replies as they came, for tests that check a
+    refusal's code and comment, and raw queries (arbitrary payloads, for bad-input tests)."""
+
+    def common(self, name: str, args: Mapping[str, Any] | None = None) -> Reply:
+        return self.call(Interface.COMMON, name, args)
+
+    def middle(self, name: str, args: Mapping[str, Any] | None = None) -> Reply:
+        return self.call(Interface.MIDDLE, name, args)
+
+    def ext(self, name: str, args: Mapping[str, Any] | None = None) -> Reply:
+        return self.call(Interface.EXT, name, args)
+
+    def servo(self, name: str, args: Mapping[str, Any] | None = None) -> Reply:
+        return self.call(Interface.COMMON, name, args, servo=True)
 
     def raw(self, key: str, payload: bytes, *, json: bool = False, timeout: float = 10.0) -> Any:
         """A query with an arbitrary payload (labelled JSON if ``json``); the reply map as decoded data,

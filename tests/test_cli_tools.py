@@ -374,7 +374,7 @@ def test_live_bad_input_is_refused_here_and_nothing_moves(arm: Arm, argv: list[s
     assert run.stdout == ""  # no reply: nothing was sent
     arm.servo_time.passes(0.3)
     assert np.abs(arm.servo_time.settled() - before).max() < 1e-6  # [rad] nothing moved (the hold jitters ~1e-12)
-    assert not arm.client.state() & StateBit.MOVING
+    assert not arm.client.state & StateBit.MOVING
 
 
 @pytest.mark.timeout(120)
@@ -384,12 +384,12 @@ def test_live_echo_state_once_prints_the_next_change(arm: Arm) -> None:
         def printed() -> bool:  # toggle the servo until echo, subscribed by then, has printed a change
             if echo.popen.poll() is not None:
                 return True
-            on = bool(arm.client.state() & StateBit.SERVO_ON)
+            on = bool(arm.client.state & StateBit.SERVO_ON)
             arm.client.common(OP.servoOFF if on else OP.servoON)
             time.sleep(0.2)
             return False
         wait_until(printed, timeout=30, interval=0.1, what="echo's one sample",
-                   explain=lambda: f"state {arm.client.state():#x}; echo's output so far:\n{echo.output}")
+                   explain=lambda: f"state {arm.client.state:#x}; echo's output so far:\n{echo.output}")
         assert echo.popen.wait(5) == 0, echo.output
     finally:
         echo.stop()

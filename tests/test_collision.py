@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from jara_arm.kinematics import Kinematics
-from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.robots import ROBOTS, Obstacle, RobotModel, robot
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.operations import OP
@@ -21,7 +20,7 @@ from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.request import PlanRefused
 
 from .harness import ServoTime, launched
-from .support import client_session, motion_settings, plan_request
+from .support import Client, client_session, motion_settings, plan_request
 
 IIWA = robot("iiwa")
 READY = np.array(IIWA.ready_pose)
@@ -145,7 +144,7 @@ def test_live_ptp_through_a_box_is_refused_and_nothing_moves():
     box = _box_ahead()
     with launched("--robot", "iiwa", "--obstacle", box.argument()) as (_proc, port), \
             client_session(port) as session:
-        client = ArmClient(session)
+        client = Client(session)
         servo = ServoTime(session, client.keys)
         assert client.common(OP.servoON).id == ReturnCode.OK
         assert client.middle(OP.setSpeedJoint, {"spdRatio": 50}).id == ReturnCode.OK
@@ -156,5 +155,5 @@ def test_live_ptp_through_a_box_is_refused_and_nothing_moves():
         servo.passes(0.3)
         after = servo.sample()[1]
         assert np.abs(after - before).max() < 1e-6, (before, after)
-        assert not client.state() & StateBit.MOVING
+        assert not client.state & StateBit.MOVING
 

@@ -88,7 +88,7 @@ class Arm(RecordingArm):
         self.ok(self.middle(name, args))
         self.client.wait_idle(60.0)
         self.settle()
-        state = self.client.state()
+        state = self.client.state
         assert not state & StateBit.ALARM, f"{name}: alarm (state 0x{state:02x})\n" + self.log()
         aborted = [ln for ln in (self.proc.lines[mark:] if self.proc else []) if "abort (" in ln or "ran dry" in ln]
         assert not aborted, f"{name}: the system aborted the motion (streaming, not a family rule):\n" + \

@@ -23,7 +23,6 @@ import zenoh
 
 from jara_arm import robots
 from jara_arm.launcher.secure.certs import init_cell, issue
-from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.launcher.up.gateway import FeedbackRelay
 from jara_arm.schema import messages
 from jara_arm.schema.keys import ArmKeys, Service, any_arm_alarm, any_arm_every_key
@@ -34,7 +33,7 @@ from jara_arm.services.runtime.wire import decode_sample
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 from .harness import LiveArm, launched, listening
-from .support import LAUNCHER, Proc, client_session, endpoint, free_port, wait_until
+from .support import LAUNCHER, Client, Proc, client_session, endpoint, free_port, wait_until
 
 BAD_CLIENT = Path(__file__).parents[1] / "bench" / "bad_client.py"
 ROBOT = "iiwa"
@@ -231,7 +230,7 @@ def test_two_gateways_each_serve_their_own_clients_every_sample_once() -> None:
         try:
             gateway.wait_for_line("ready", timeout=30)
             with client_session(port) as a, client_session(second) as b:
-                ArmClient(b).wait_alive((Service.SERVO,))
+                Client(b).wait_alive((Service.SERVO,))
                 for session in (a, b):
                     ns = _feedback_times(session, "arm0", 500)
                     assert np.all(np.diff(ns) > 0), "a sample came twice (or out of order)"

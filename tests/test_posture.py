@@ -18,7 +18,6 @@ import pytest
 
 from jara_arm.kinematics import Kinematics, as_se3
 from jara_arm.kinematics.posture import ELBOW, POSTURE_SET, SHOULDER, WRIST, Postures, describe
-from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.robots import RobotModel, robot
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import ReturnCode, StateBit
@@ -29,7 +28,7 @@ from jara_arm.services.planner.planning import MotionPlanner
 from jara_arm.services.planner.request import PlanRefused
 
 from .harness import ServoTime, launched
-from .support import client_session, motion_settings, plan_request
+from .support import Client, client_session, motion_settings, plan_request
 
 POSE_TOL = 1e-6  # [m] and [rad]: a PTP's end against its Cartesian target
 
@@ -314,7 +313,7 @@ def test_live_posture_reached_reported_and_lin_across_refused():
     other = known_solutions(model, kin, q)[-1]  # every bit of the sample pose flipped
     flag = postures.of(other)
     with launched("--robot", "iiwa") as (_proc, port), client_session(port) as session:
-        client = ArmClient(session)
+        client = Client(session)
         servo = ServoTime(session, client.keys)
         assert client.common(OP.servoON).id == ReturnCode.OK
         assert client.middle(OP.setSpeedJoint, {"spdRatio": 100}).id == ReturnCode.OK
@@ -341,4 +340,4 @@ def test_live_posture_reached_reported_and_lin_across_refused():
         servo.passes(0.3)
         after = servo.sample()[1]
         assert np.abs(after - before).max() < 1e-6, (before, after)
-        assert not client.state() & StateBit.MOVING
+        assert not client.state & StateBit.MOVING

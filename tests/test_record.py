@@ -394,7 +394,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
             assert client.middle(OP.moveLinearCartesianRel, {"carPoint": down}).ok
             client.wait_idle()
             session.put(client.keys.estop, b"")
-            wait_until(lambda: client.state() & StateBit.ALARM, 10, what="the e-stop alarm")
+            wait_until(lambda: client.state & StateBit.ALARM, 10, what="the e-stop alarm")
             cleared = session.declare_subscriber(client.keys.trace(Interface.COMMON.value, OP.clearAlarms),
                                                  zenoh.handlers.FifoChannel(4))
             assert client.common(OP.clearAlarms).ok

@@ -22,8 +22,8 @@ import pytest
 import zenoh
 
 from jara_arm import robots
+from jara_arm.client import NoAnswer
 from jara_arm.launcher.secure.certs import init_cell, issue
-from jara_arm.launcher.tools.client import ArmClient, ClientError
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codes import AlarmCode, StateBit
@@ -34,7 +34,7 @@ from jara_arm.schema.types import Time, TimedJointPos
 from jara_arm.services.runtime.cell import Cell
 
 from .harness import ServoTime, launched, listening
-from .support import LAUNCHER, STREAM_PRIORITY, Proc, free_port, realtime_process_section, wait_until
+from .support import LAUNCHER, STREAM_PRIORITY, Client, Proc, free_port, realtime_process_section, wait_until
 
 ROBOT = "iiwa"
 KEYS = ArmKeys("arm0")
@@ -86,11 +86,11 @@ def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SecureCell]:
 
 
 @pytest.fixture
-def operator(cell: SecureCell) -> Iterator[ArmClient]:
+def operator(cell: SecureCell) -> Iterator[Client]:
     """An operator, the arm servo-on and at rest, no alarm."""
     with cell.session("alice") as s:
-        client = ArmClient(s)
-        if client.state() & StateBit.ALARM:
+        client = Client(s)
+        if client.state & StateBit.ALARM:
             assert client.common(OP.clearAlarms).ok
         assert client.common(OP.servoON).ok
         assert client.middle(OP.setSpeedJoint, {"spdRatio": 100}).ok
@@ -103,7 +103,7 @@ def test_the_launcher_says_the_cell_is_secure(cell: SecureCell) -> None:
     assert "mutual TLS" in line and "OPEN" not in cell.proc.output  # type: ignore[union-attr]
 
 
-def test_an_operator_drives_the_arm(cell: SecureCell, operator: ArmClient) -> None:
+def test_an_operator_drives_the_arm(cell: SecureCell, operator: Client) -> None:
     model_ready = np.array(operator.common(OP.getFeedbackPosJoint)["pos"], dtype=float)
     target = model_ready.copy()
     target[0] += 0.2
@@ -115,35 +115,35 @@ def test_an_operator_drives_the_arm(cell: SecureCell, operator: ArmClient) -> No
     operator.wait_idle()
 
 
-def test_an_observer_reads_but_cannot_move(cell: SecureCell, operator: ArmClient) -> None:
+def test_an_observer_reads_but_cannot_move(cell: SecureCell, operator: Client) -> None:
     with cell.session("olga") as s:
         clock = ServoTime(s, KEYS)
-        observer = ArmClient(s, timeout=2.0)
+        observer = Client(s, timeout=2.0)
         assert observer.common(OP.getState).ok  # getters: yes
         _, before = clock.sample()  # the feedback stream: yes
         mark = cell.log_mark()
         target = (before + 0.3).tolist()
-        with pytest.raises(ClientError):
+        with pytest.raises(NoAnswer):
             observer.middle(OP.movePTPJointAbs, {"jointPoints": target})
-        with pytest.raises(ClientError):
+        with pytest.raises(NoAnswer):
             observer.common(OP.servoOFF)
         cell.refused("refused: olga may not Query (ingress) on JARA_ARM/arm0/Middle/movePTPJointAbs", mark)
         cell.refused("refused: olga may not Query (ingress) on JARA_ARM/arm0/Common/servoOFF", mark)
         clock.passes(0.3)
         _, after = clock.sample()
         assert np.allclose(after, before, atol=1e-6), "the arm moved"
-        assert operator.state() & StateBit.SERVO_ON, "the observer's servoOFF got through"
+        assert operator.state & StateBit.SERVO_ON, "the observer's servoOFF got through"
         observer.close()
 
 
-def test_an_observer_may_stop_the_arm(cell: SecureCell, operator: ArmClient) -> None:
+def test_an_observer_may_stop_the_arm(cell: SecureCell, operator: Client) -> None:
     """Anyone who can see the arm may stop it: the e-stop of an observer is a FAULT like any other."""
     with cell.session("olga") as s:
         s.put(KEYS.estop, b"")
-    wait_until(lambda: operator.state() & StateBit.ALARM, what="the e-stop alarm")
+    wait_until(lambda: operator.state & StateBit.ALARM, what="the e-stop alarm")
     codes = [a.code for a in operator.common(OP.getActiveAlarm)["alarms"]]
     assert AlarmCode.EMERGENCY_STOP in codes
-    assert not operator.state() & StateBit.SERVO_ON
+    assert not operator.state & StateBit.SERVO_ON
     assert operator.common(OP.clearAlarms).ok  # the operator recovers
     assert operator.common(OP.servoON).ok
 
@@ -199,7 +199,7 @@ def _stream_towards(session: zenoh.Session, clock: ServoTime, delta: float, dura
     return q0
 
 
-def test_posCmd_needs_the_low_level_role(cell: SecureCell, operator: ArmClient) -> None:
+def test_posCmd_needs_the_low_level_role(cell: SecureCell, operator: Client) -> None:
     """An operator peer publishing position commands and heartbeats changes nothing; a low-level one moves
     the arm (the same stream, so the first test could fail)."""
     mark = cell.log_mark()
@@ -224,7 +224,7 @@ def test_posCmd_needs_the_low_level_role(cell: SecureCell, operator: ArmClient) 
         q0 = _stream_towards(s, clock, 0.05)
         wait_until(lambda: abs(clock.sample()[1][0] - q0[0]) > 0.01, what="the low-level stream moving J1")
     operator.wait_idle()
-    assert not operator.state() & StateBit.ALARM, operator.common(OP.getActiveAlarm)
+    assert not operator.state & StateBit.ALARM, operator.common(OP.getActiveAlarm)
 
 
 def test_an_open_router_says_so() -> None:

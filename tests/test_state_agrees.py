@@ -11,30 +11,29 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from jara_arm.launcher.tools.client import ArmClient
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import OP
 
 from .harness import launched
-from .support import Proc, busy_loops, client_session, wait_until
+from .support import Client, Proc, busy_loops, client_session, wait_until
 
 ROUNDS = 50
 POWER_ROUNDS = 20
 
 
 @pytest.fixture(scope="module")
-def system() -> Iterator[tuple[Proc, zenoh.Session, ArmClient]]:
+def system() -> Iterator[tuple[Proc, zenoh.Session, Client]]:
     """``jara-arm up --robot iiwa``, every service alive, and a client of it."""
     with launched("--robot", "iiwa") as (proc, port), client_session(port) as session:
-        client = ArmClient(session)
+        client = Client(session)
         client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR))
         yield proc, session, client
 
 
 def test_right_after_a_servo_on_or_off_reply_the_state_shows_it(
-        system: tuple[Proc, zenoh.Session, ArmClient]) -> None:
+        system: tuple[Proc, zenoh.Session, Client]) -> None:
     """No wait, no poll: the command took in the status the servo's reply carried (before, it waited up to
     0.5 s for two publications and then answered with whatever had come); and a move sent at once after
     the servoON reply is taken, though the planner may not have heard the servo's publication yet."""
@@ -45,7 +44,7 @@ def test_right_after_a_servo_on_or_off_reply_the_state_shows_it(
     for k in range(POWER_ROUNDS):
         for name, on in ((OP.servoON, True), (OP.servoOFF, False)):
             assert client.common(name).id == ReturnCode.OK, proc.lines[-20:]
-            state, servo = client.state(), int(client.servo(OP.getState)["state"])
+            state, servo = client.state, int(client.servo(OP.getState)["state"])
             if bool(state & StateBit.SERVO_ON) != on or bool(servo & StateBit.SERVO_ON) != on:
                 late.append(f"round {k}: {name} answered, then getState 0x{state:02x}, the servo's 0x{servo:02x}")
             if on:
@@ -53,19 +52,19 @@ def test_right_after_a_servo_on_or_off_reply_the_state_shows_it(
                 moved = client.middle(OP.movePTPJointRel, {"jointPoints": turn})
                 if moved.id != ReturnCode.OK:
                     late.append(f"round {k}: a move right after the servoON reply refused: {moved}")
-                wait_until(lambda: not client.state() & StateBit.MOVING, 5, 0.01, "the move's end")
+                wait_until(lambda: not client.state & StateBit.MOVING, 5, 0.01, "the move's end")
     assert not late, "\n".join(late[:10]) + f"\nlog: {proc.lines[-20:]}"
 
 
 def test_once_a_fault_is_listed_the_state_says_alarm_and_servo_off(
-        system: tuple[Proc, zenoh.Session, ArmClient]) -> None:
+        system: tuple[Proc, zenoh.Session, Client]) -> None:
     """50 e-stops, a busy loop on every core (where the state once lagged the list), both read in a loop."""
     proc, session, client = system
     with busy_loops():
         _estops(proc, session, client)
 
 
-def _estops(proc: Proc, session: zenoh.Session, client: ArmClient) -> None:
+def _estops(proc: Proc, session: zenoh.Session, client: Client) -> None:
     disagreements: list[str] = []
     faults = 0
     for k in range(ROUNDS):
@@ -83,7 +82,7 @@ def _estops(proc: Proc, session: zenoh.Session, client: ArmClient) -> None:
             nonlocal faults
             while not stop.is_set():
                 listed = client.common(OP.getActiveAlarm)["alarms"]
-                state = client.state()
+                state = client.state
                 if any(a.type is AlarmType.FAULT for a in listed):
                     faults += 1
                     if not state & StateBit.ALARM or state & StateBit.SERVO_ON:

@@ -514,13 +514,13 @@ def test_live_the_page_shows_the_arm_and_a_ptp_move(arm: LiveArm, tmp_path: Path
             reply = arm.client.middle(OP.movePTPJointAbs, {"jointPoints": target.tolist()})
             assert reply.ok, f"{reply}\n{arm.explain()}"
             arm.client.wait_idle()
-            assert not arm.client.state() & StateBit.ALARM, arm.explain()
+            assert not arm.client.state & StateBit.ALARM, arm.explain()
             # The open page follows the move by itself (no reload).
             assert eventually(b, tmp_path / "moved.png", shown, 0.005) > 0.005, "the page did not follow the PTP move"
             # It only reads: the arm is where the move left it, and nothing moves it since.
             pos = np.asarray(arm.client.common(OP.getFeedbackPosJoint)["pos"])[:len(target)]
             assert np.abs(pos - target).max() < 1e-3, f"the arm is at {pos}, not {target}\n{arm.explain()}"
-            assert not arm.client.state() & StateBit.MOVING
+            assert not arm.client.state & StateBit.MOVING
 
 
 @contextlib.contextmanager

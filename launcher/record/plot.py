@@ -37,6 +37,7 @@ import zenoh
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from jara_arm.client import Arm, NoAnswer
 from jara_arm.kinematics import Kinematics, hg_to_se3
 from jara_arm.robots import ROBOTS, RobotModel, RobotModelError, robot
 from jara_arm.schema import codec
@@ -47,7 +48,6 @@ from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.types import LimitValue
 
 from ..tools.arm_state import sample_encoding
-from ..tools.client import ArmClient, ClientError
 from .plot_figures import DPI, Size, SizeError, draw_joints, draw_path
 from .traces import JointLimits, TraceError, cartesian_path, traces
 
@@ -252,27 +252,27 @@ def _message_total(path: Path, keys: Sequence[str]) -> int | None:
         return None
 
 
-def _ask(client: ArmClient, op: str) -> Any | None:
+def _ask(client: Arm, op: str) -> Any | None:
     """A Common operation's reply, from the command service or else the servo; None if neither answers OK."""
     for servo in (False, True):
         try:
             reply = client.call(Interface.COMMON, op, servo=servo)
-        except ClientError:
+        except NoAnswer:
             continue
         if reply.ok:
             return reply
     return None
 
 
-def _live_tool(client: ArmClient, model: RobotModel) -> pin.SE3 | None:
+def _live_tool(client: Arm, model: RobotModel) -> pin.SE3 | None:
     """The control point offset C = inv(T_flange) · B · T_robot, from the joint and Cartesian feedback at
     rest (there is no operation that reads C back); None if the arm moved meanwhile or a reply is missing."""
     try:
-        before = client.common(OP.getFeedbackPosJoint)
-        cartesian = client.middle(OP.getFeedbackPosCartesian)
-        base = client.middle(OP.getBaseOffset)
-        after = client.common(OP.getFeedbackPosJoint)
-    except ClientError:
+        before = client.call(Interface.COMMON, OP.getFeedbackPosJoint)
+        cartesian = client.call(Interface.MIDDLE, OP.getFeedbackPosCartesian)
+        base = client.call(Interface.MIDDLE, OP.getBaseOffset)
+        after = client.call(Interface.COMMON, OP.getFeedbackPosJoint)
+    except NoAnswer:
         return None
     if not all(r.ok for r in (before, cartesian, base, after)):
         return None
@@ -283,7 +283,7 @@ def _live_tool(client: ArmClient, model: RobotModel) -> pin.SE3 | None:
     return Kinematics(model, seed_table=0).fk(q0[:model.axis_num]).inverse() * arm_pose
 
 
-def collect_live(session: zenoh.Session, client: ArmClient, seconds: float | None, stop: threading.Event,
+def collect_live(session: zenoh.Session, client: Arm, seconds: float | None, stop: threading.Event,
                  err: TextIO) -> Feedback:
     """The arm's feedback for ``seconds`` [s] (None: until ``stop``), with its manipulator info, soft limits
     and control point offset, asked first."""

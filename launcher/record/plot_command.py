@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from jara_arm.client import Arm
 from jara_arm.robots import ROBOTS
 from jara_arm.schema.keys import DEFAULT_ARM
 from jara_arm.services.runtime.arguments import non_negative_float, positive_float
@@ -16,7 +17,6 @@ from jara_arm.services.runtime.arguments import non_negative_float, positive_flo
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, open_session
 from ..stop_signals import StopSignals
-from ..tools.client import ArmClient
 
 
 def _arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,7 +66,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
             session = open_session(args, parser)
             signals = StopSignals()
             with session:
-                client = ArmClient(session, settings.arm or DEFAULT_ARM, timeout=2.0)
+                client = Arm(session, settings.arm or DEFAULT_ARM, timeout=2.0)
                 try:
                     feedback = collect_live(session, client, settings.seconds, signals.stop, sys.stderr)
                 finally:

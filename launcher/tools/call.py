@@ -17,6 +17,7 @@ import time
 from collections.abc import Mapping
 from typing import Any, TextIO
 
+from jara_arm.client import Arm, NoAnswer
 from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Reply
@@ -28,7 +29,6 @@ from jara_arm.services.runtime.arguments import positive_float
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_arm, add_client_zenoh_arguments, no_answer, open_session
 from ..stop_signals import StopSignals
-from .client import ArmClient, ClientError
 
 #: Exit status of a reply whose id is not OK, or of no reply at all.
 FAILED = 1
@@ -171,9 +171,9 @@ def return_code_name(code: int) -> str:
         return "unknown code"
 
 
-def run_call(client: ArmClient, call: Call, out: TextIO, err: TextIO) -> int:
+def run_call(client: Arm, call: Call, out: TextIO, err: TextIO) -> int:
     """Send ``call``, print its reply as JSON on ``out``; 0 if the reply is OK, FAILED otherwise.
-    Raises ``ClientError`` when nobody answers."""
+    Raises ``NoAnswer`` when nobody answers."""
     reply = client.call(call.op.interface, call.op.name, call.args, servo=call.servo)
     print(json.dumps(reply_json(call.op, reply)), file=out, flush=True)
     if reply.ok:
@@ -208,10 +208,10 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     StopSignals()  # SIGINT/SIGTERM noted, not obeyed: the reply is waited for (within --timeout)
     with session:
         # [s] for the reply: what joining left of the timeout
-        client = ArmClient(session, args.arm, timeout=max(0.1, args.timeout - (time.monotonic() - began)))
+        client = Arm(session, args.arm, timeout=max(0.1, args.timeout - (time.monotonic() - began)))
         try:
             return run_call(client, call, sys.stdout, sys.stderr)
-        except ClientError as exc:
+        except NoAnswer as exc:
             return no_answer(args, parser, exc)
         finally:
             client.close()

@@ -22,6 +22,7 @@ from typing import Any, TextIO
 import numpy as np
 import zenoh
 
+from jara_arm.client import Arm, NoAnswer
 from jara_arm.schema import codec
 from jara_arm.schema.alarms import HEARTBEAT, format_code
 from jara_arm.schema.errors import JaraArmError
@@ -34,7 +35,6 @@ from jara_arm.services.runtime.arguments import positive_float
 from ..command import Command, setup_logging
 from ..session import add_arm, add_client_zenoh_arguments, listening, no_answer
 from .arm_state import format_state, read_state, sample_encoding
-from .client import ArmClient, ClientError
 from .wait import alive_services
 
 CLEAR = "\x1b[H\x1b[J"  #: cursor home, erase below: the ANSI redraw of a terminal
@@ -148,7 +148,7 @@ def _services(alive: frozenset[str] | None, beats: Mapping[str, Beat]) -> str:
 class Publications:
     """The newest ``state``, ``Servo/health`` and heartbeats of one arm, from ring channels."""
 
-    def __init__(self, session: zenoh.Session, client: ArmClient) -> None:
+    def __init__(self, session: zenoh.Session, client: Arm) -> None:
         keys = client.keys
         self._subs = [session.declare_subscriber(k, zenoh.handlers.RingChannel(_RING))
                       for k in (keys.state, keys.servo_health, keys.heartbeat())]
@@ -185,7 +185,7 @@ class Publications:
             sub.undeclare()
 
 
-def snapshot(client: ArmClient, pubs: Publications, axis_num: int | None) -> Snapshot:
+def snapshot(client: Arm, pubs: Publications, axis_num: int | None) -> Snapshot:
     """Ask for what is asked for, add the newest publications."""
     errors: list[str] = []
     values: dict[str, Any] = {}
@@ -195,7 +195,7 @@ def snapshot(client: ArmClient, pubs: Publications, axis_num: int | None) -> Sna
                                  (OP.getActiveAlarm, Interface.COMMON, "alarms")):
         try:
             reply = client.call(interface, name, None)
-        except (ClientError, JaraArmError) as exc:
+        except JaraArmError as exc:
             errors.append(f"{name}: {exc}")
             continue
         if reply.ok:
@@ -215,15 +215,15 @@ def snapshot(client: ArmClient, pubs: Publications, axis_num: int | None) -> Sna
         errors=tuple(errors + pubs.errors))
 
 
-def _axis_num(client: ArmClient) -> int | None:
+def _axis_num(client: Arm) -> int | None:
     try:
-        reply = client.common(OP.getManipInfo)
-    except (ClientError, JaraArmError):
+        reply = client.call(Interface.COMMON, OP.getManipInfo)
+    except JaraArmError:
         return None
     return int(reply["mInfo"].axisNum) if reply.ok else None
 
 
-def run_state(client: ArmClient, stop: threading.Event, out: TextIO, *, once: bool, period: float,
+def run_state(client: Arm, stop: threading.Event, out: TextIO, *, once: bool, period: float,
               tty: bool) -> int:
     """Print the view every ``period`` [s] until ``stop`` (in place on a terminal), or once."""
     pubs = Publications(client.session, client)
@@ -258,11 +258,11 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     setup_logging("WARNING")
     with listening(args, parser) as (session, stop):
-        client = ArmClient(session, args.arm, timeout=2.0)
+        client = Arm(session, args.arm, timeout=2.0)
         try:
             return run_state(client, stop, sys.stdout, once=args.once, period=args.period,
                              tty=sys.stdout.isatty())
-        except ClientError as exc:
+        except NoAnswer as exc:
             return no_answer(args, parser, exc)
         finally:
             client.close()

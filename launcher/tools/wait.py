@@ -18,6 +18,7 @@ from typing import TextIO
 
 import zenoh
 
+from jara_arm.client import Arm, ArmError
 from jara_arm.schema.codes import StateBit
 from jara_arm.schema.keys import ArmKeys, Service, parse_alive
 from jara_arm.services.runtime.arguments import positive_float
@@ -25,7 +26,6 @@ from jara_arm.services.runtime.arguments import positive_float
 from ..command import Command, setup_logging
 from ..session import add_arm, add_client_zenoh_arguments, listening, no_answer
 from .arm_state import format_state
-from .client import ArmClient, ClientError
 
 TIMED_OUT = 1
 INTERRUPTED = 130  #: the shell's status for SIGINT
@@ -81,19 +81,19 @@ def alive_services(session: zenoh.Session, keys: ArmKeys, timeout: float = 1.0) 
             for reply in session.liveliness().get(keys.alive(), timeout=timeout) if reply.ok is not None}
 
 
-def check(client: ArmClient, condition: Condition) -> Check:
+def check(client: Arm, condition: Condition) -> Check:
     if condition is Condition.ALIVE:
         up = alive_services(client.session, client.keys)
         missing = [s.value for s in Service if s.value not in up]
         return Check(not missing, f"not up: {', '.join(missing)}" if missing else "every service up")
     try:
-        bits = client.state()
-    except ClientError as exc:
+        bits = client.state
+    except ArmError as exc:
         return Check(False, str(exc))
     return Check(state_meets(condition, bits), f"state {format_state(bits)}")
 
 
-def run_wait(client: ArmClient, condition: Condition, timeout: float, poll: float, stop: threading.Event,
+def run_wait(client: Arm, condition: Condition, timeout: float, poll: float, stop: threading.Event,
              err: TextIO, began: float | None = None) -> int:
     """Until ``condition`` holds (0), ``timeout`` [s] passes (TIMED_OUT) or ``stop`` (INTERRUPTED); the timeout
     counts from ``began`` [s, monotonic] if given (the command's start: joining the network included)."""
@@ -126,11 +126,11 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     setup_logging("WARNING")
     began = time.monotonic()
     with listening(args, parser, join_within=args.timeout) as (session, stop):
-        client = ArmClient(session, args.arm, timeout=2.0)
+        client = Arm(session, args.arm, timeout=2.0)
         try:
             return run_wait(client, Condition(args.condition), args.timeout, args.poll, stop, sys.stderr,
                             began)
-        except ClientError as exc:
+        except ArmError as exc:
             return no_answer(args, parser, exc)
         finally:
             client.close()
