@@ -230,6 +230,8 @@ def test_monitor_hung_by_sigstop(arm: AlarmArm):
     arm.event(AlarmCode.MONITOR_HUNG, since)  # the monitor, back, lists the servo's report
     # ... and does not act on the clearAlarms the servo forwarded while it was stopped.
     arm.proc.wait_for_line("Monitor/Common/clearAlarms unanswered: its requester gave up", timeout=2, start=mark)
+    # ... and was not asked getActiveAlarm at all: the servo had latched it hung and answered itself.
+    assert not [line for line in arm.proc.lines[mark:] if "Monitor/Common/getActiveAlarm unanswered" in line]
     check_alarm(arm, AlarmCode.MONITOR_HUNG, AlarmType.FAULT, servo_on=False)
     check_queue_discarded(arm)
     check_no_jump(arm, since=cause)

@@ -221,6 +221,15 @@ class ServoLoop:
         """The servo's own latches (what ``getActiveAlarm`` says when the monitor is silent)."""
         return tuple(latch.alarm for latch in list(self.alarm_state.latches.values()))
 
+    @property
+    def monitor_silent(self) -> bool:
+        """The alarm monitor is gone or hangs, by this servo's own evidence (0x403 or 0x413 latched, its cause
+        still there): a query to it would only wait for its timeout. Read from a query worker: a stale answer
+        costs that timeout once, or answers the servo's own view (said so) a moment after the monitor is back."""
+        latches = self.alarm_state.latches
+        return ((AlarmCode.MONITOR_LOST in latches and not self._monitor.alive)
+                or (AlarmCode.MONITOR_HUNG in latches and self._monitor.hung()))
+
     def call(self, fn: Callable[[], T], timeout: float = 1.0) -> T:
         """Run ``fn`` on the clock's thread at this arm's next cycle and return its result."""
         fut: concurrent.futures.Future = concurrent.futures.Future()

@@ -53,7 +53,8 @@ class ServoCommon:
         return self.power.clear()
 
     def getActiveAlarm(self) -> Reply:
-        reply = self.monitor.call(OP.getActiveAlarm)
+        # A monitor this servo knows is gone or hung is not asked (architecture.md, "Where the servo acts alone").
+        reply = None if self.loop.monitor_silent else self.monitor.call(OP.getActiveAlarm)
         if reply is None:
             return ok(f"OK ({NO_MONITOR})", alarms=self.loop.alarms)
         return reply
