@@ -376,17 +376,29 @@ def browser(workdir: Path) -> Iterator[Browser]:
         b.close()
 
 
-def settled_shot(b: Browser, out: Path, seconds: float = 6.0) -> np.ndarray:
-    """The page once it stopped changing (its scene faded in): two shots a second apart that agree."""
+def settled_shot(b: Browser, out: Path, seconds: float = 1.0) -> np.ndarray:
+    """The page once its scene is drawn and stopped changing (faded in): two shots a second apart that agree,
+    the scene not blank (before it draws, the page's shots agree too: one colour, its panel text already
+    there)."""
     deadline = time.monotonic() + 60.0
     time.sleep(seconds)
     last = b.shot(out)
     while True:
         time.sleep(1.0)
         now = b.shot(out)
-        if differ(last, now) < 1e-4 or time.monotonic() > deadline:
+        if (differ(last, now) < 1e-4 and drawn(now)) or time.monotonic() > deadline:
             return now
         last = now
+
+
+def drawn(shot: np.ndarray) -> bool:
+    """Whether the scene shows anything (its grid at least): over 1 % of its pixels away from its most common
+    colour."""
+    h, w = shot.shape[:2]
+    scene = shot[h // 5:, : w * 7 // 10].reshape(-1, shot.shape[2]).astype(int)
+    colours, counts = np.unique(scene, axis=0, return_counts=True)
+    background = colours[np.argmax(counts)]
+    return float((np.abs(scene - background).max(axis=1) > 24).mean()) > 0.01
 
 
 def eventually(b: Browser, out: Path, than: np.ndarray, share: float, timeout: float = 30.0) -> float:
