@@ -318,7 +318,7 @@ class Browser:
     page's websocket). Every host but loopback resolves to nothing: a page that needs the internet
     shows it here."""
 
-    def __init__(self, workdir: Path, width: int = 1280, height: int = 800) -> None:
+    def __init__(self, workdir: Path, width: int = 960, height: int = 600) -> None:
         profile = workdir / "chromium-profile"
         argv = [chromium(), "--headless=new", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                 "--hide-scrollbars", "--no-first-run", "--remote-debugging-port=0", f"--user-data-dir={profile}",
@@ -394,8 +394,7 @@ def settled_shot(b: Browser, out: Path, seconds: float = 1.0) -> np.ndarray:
 def drawn(shot: np.ndarray) -> bool:
     """Whether the scene shows anything (its grid at least): over 1 % of its pixels away from its most common
     colour."""
-    h, w = shot.shape[:2]
-    scene = shot[h // 5:, : w * 7 // 10].reshape(-1, shot.shape[2]).astype(int)
+    scene = shot[scene_mask(shot.shape)].astype(int)
     colours, counts = np.unique(scene, axis=0, return_counts=True)
     background = colours[np.argmax(counts)]
     return float((np.abs(scene - background).max(axis=1) > 24).mean()) > 0.01
@@ -417,12 +416,25 @@ def differ(a: np.ndarray, b: np.ndarray) -> float:
     """Share of the 3D view's pixels that differ by more than a little (rendering noise is not a change).
 
     The panel (top right: its text changes with the arms' state) and viser's notice of software WebGL
-    (top left) are left out: what is compared is the scene alone."""
+    (top left) are left out (``scene_mask``): what is compared is the scene alone."""
     changed = np.abs(a.astype(int) - b.astype(int)).max(axis=2) > 24
-    h, w = changed.shape
-    changed[:h // 2, w * 7 // 10:] = False  # the panel
-    changed[:h // 5, :w // 4] = False  # the notice
-    return float(changed.mean())
+    return float(changed[scene_mask(changed.shape)].mean())
+
+
+#: [px] viser's overlays, fixed in CSS pixels whatever the window: the panel at the top right (two arms'
+#: lines fit), the notice of software WebGL at the top left (960 x 600 shots: panel 625-945 x 15-170,
+#: notice 15-310 x 15-150).
+PANEL = (360, 300)
+NOTICE = (330, 170)
+
+
+def scene_mask(shape: tuple[int, ...]) -> np.ndarray:
+    """True where a shot of ``shape`` shows the 3D scene, not the page's overlays."""
+    h, w = shape[:2]
+    mask = np.ones((h, w), dtype=bool)
+    mask[:PANEL[1], w - PANEL[0]:] = False
+    mask[:NOTICE[1], :NOTICE[0]] = False
+    return mask
 
 
 class _Served:
