@@ -34,7 +34,7 @@ from jara_arm.schema import codec
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import AlarmType, ReturnCode, StateBit
-from jara_arm.schema.keys import ArmKeys
+from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.messages import LoopHealth
 from jara_arm.schema.operations import ALL, MIDDLE, OP
 from jara_arm.schema.types import Alarm, CarPosWithElbow, Time, hg_matrix
@@ -431,22 +431,28 @@ def test_live_wait_times_out_non_zero_and_meets_what_holds(arm: Arm) -> None:
     assert arm.run("wait", "no-alarm", "--timeout", "5").returncode == 0
 
 
-def test_a_command_with_a_timeout_keeps_trying_to_join_until_the_router_listens() -> None:
-    """``jara-arm echo --timeout`` started before the router: it is refused once, tries again, and prints
-    the sample once the router is up (it used to exit 2 at once: "cannot join the Zenoh network")."""
-    port = free_port()
-    keys = ArmKeys("t4")
-    with socket.create_server(("127.0.0.1", port)) as early:  # something that refuses Zenoh on the port
-        echo = subprocess.Popen([*LAUNCHER, "echo", "--arm", "t4", "state", "--once", "--timeout", "60",
-                                 "--connect", endpoint(port)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                text=True)
+def _refused_once(port: int, argv: list[str]) -> subprocess.Popen[str]:
+    """``jara-arm argv`` started while something that refuses Zenoh listens on ``port``; returned once it
+    made its first try."""
+    with socket.create_server(("127.0.0.1", port)) as early:
+        proc = subprocess.Popen([*LAUNCHER, *argv, "--connect", endpoint(port)], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
         try:
             early.settimeout(60)
             conn, _ = early.accept()  # its first try
             conn.close()
         except BaseException:
-            echo.kill()
+            proc.kill()
             raise
+    return proc
+
+
+def test_a_command_with_a_timeout_keeps_trying_to_join_until_the_router_listens() -> None:
+    """``jara-arm echo --timeout`` started before the router: it is refused once, tries again, and prints
+    the sample once the router is up (it used to exit 2 at once: "cannot join the Zenoh network")."""
+    port = free_port()
+    keys = ArmKeys("t4")
+    echo = _refused_once(port, ["echo", "--arm", "t4", "state", "--once", "--timeout", "60"])
     with zenoh.open(zenoh_config("router", listen=[endpoint(port)])) as router:
         try:
             while echo.poll() is None:  # until echo has joined, subscribed and printed one
@@ -457,3 +463,20 @@ def test_a_command_with_a_timeout_keeps_trying_to_join_until_the_router_listens(
             echo.kill()
     assert echo.returncode == 0, err
     assert json.loads(out)["state"] == 1
+
+
+def test_wait_alive_started_before_the_router_waits_for_it_and_the_services() -> None:
+    """``jara-arm wait --arm ID alive --timeout 60`` just after ``jara-arm up`` (before its router listens): it
+    keeps trying to join, then waits for the four services' tokens, and exits 0 once they are all up."""
+    port = free_port()
+    keys = ArmKeys("t5")
+    wait = _refused_once(port, ["wait", "--arm", "t5", "alive", "--timeout", "60"])
+    with zenoh.open(zenoh_config("router", listen=[endpoint(port)])) as router:
+        tokens = [router.liveliness().declare_token(keys.alive(service)) for service in Service]
+        try:
+            out, err = wait.communicate(timeout=60)
+        finally:
+            wait.kill()
+            for token in tokens:
+                token.undeclare()
+    assert wait.returncode == 0, err
