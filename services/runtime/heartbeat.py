@@ -37,6 +37,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 from .entities import Entities
 from .realtime import realtime_thread
 from .starvation import EVIDENCE_WINDOW, STARVED_MAX, THIS_HOST, ThreadSched, judge, thread_sched
+from .threads import LoopThread
 from .timing import SAME_HOST, Health
 from .wire import Publication
 
@@ -79,10 +80,9 @@ class Heartbeat:
         self._pulses: list[Pulse] = []
         self._entities = Entities()
         self._pub = self._entities.enter_context(Publication(session, keys.heartbeat(service)))
-        self._stop = threading.Event()
         self._seq = 0
         self._left = False
-        self._thread = threading.Thread(target=self._run, name=f"{service.value}-heartbeat", daemon=True)
+        self._thread = LoopThread(self._run, f"{service.value}-heartbeat", join_within=1.0)
 
     def pulse(self, name: str, deadline: float | None = None) -> Pulse:
         """A new loop to watch: ``name`` says which in the stuck line, e.g. "the servo loop";
@@ -96,26 +96,21 @@ class Heartbeat:
 
     def leave(self) -> None:
         """Beat no more, send the last beat (``leaving``) and give it a head start on the token."""
-        self._stop_thread()
+        self._thread.stop()
         if self._left:
             return
         self._left = True
         try:
             self._pub.put_message(HEARTBEAT, alarms.Heartbeat(self._seq, (), True, os.getpid(), THIS_HOST,
-                                                              self._thread.native_id or 0))
+                                                              self._thread.native_id))
         except zenoh.ZError as exc:
             log.debug("leaving beat not sent: %s", exc)
             return
         time.sleep(LEAVE_GRACE)
 
     def close(self) -> None:
-        self._stop_thread()
+        self._thread.stop()
         self._entities.close()  # idempotent: the framework closes a heartbeat twice
-
-    def _stop_thread(self) -> None:
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=1.0)
 
     def stuck(self, now: float, steady_since: float = -math.inf) -> tuple[str, ...]:
         """A line per pulse silent beyond its deadline, counting only from ``steady_since`` [s]."""
@@ -123,7 +118,7 @@ class Heartbeat:
                      f"{p.deadline * 1e3:.0f} ms)"
                      for p in self._pulses if now - max(p.at, steady_since) > p.deadline)
 
-    def _run(self) -> None:
+    def _run(self, stop: threading.Event) -> None:
         realtime_thread(self._priority, f"{self.service.value} heartbeat")
         pid, tid = os.getpid(), threading.get_native_id()
         last = steady_since = time.monotonic()
@@ -133,7 +128,7 @@ class Heartbeat:
             now = time.monotonic()
             if due < now:  # behind: beat now, no burst to catch up
                 due = now
-            if self._stop.wait(due - now):
+            if stop.wait(due - now):
                 return
             now = time.monotonic()
             if now - last > self.health.stall_after:  # this thread itself was held up

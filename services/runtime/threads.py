@@ -1,7 +1,7 @@
 """The services' own loops: a daemon thread each, started, watched and stopped the same way.
 
-The alarm monitor's loop, the command's watcher and the planner's progress relay run as a
-:class:`LoopThread`; the servo's real-time loop has its own (``servo/clock.py``).
+The alarm monitor's loop, the command's watcher, the planner's progress relay, every
+service's heartbeat and the servo's real-time clock run as a :class:`LoopThread`.
 """
 
 from __future__ import annotations
@@ -27,10 +27,16 @@ class LoopThread:
         """Whether ``body`` still runs (a service's heartbeat reports a dead loop as stuck)."""
         return self._thread.is_alive()
 
+    @property
+    def native_id(self) -> int:
+        """The kernel's id of the thread (0 before it started)."""
+        return self._thread.native_id or 0
+
     def stop(self) -> None:
-        """Ask ``body`` to return, and wait for it up to ``join_within``."""
+        """Ask ``body`` to return, and wait for it up to ``join_within`` (if it was started)."""
         self._stop.set()
-        self._thread.join(timeout=self._join_within)
+        if self._thread.is_alive():
+            self._thread.join(timeout=self._join_within)
 
 
 __all__ = ["LoopThread"]

@@ -26,6 +26,7 @@ import time
 from collections.abc import Sequence
 
 from jara_arm.services.runtime.realtime import realtime_thread
+from jara_arm.services.runtime.threads import LoopThread
 from jara_arm.services.runtime.timing import RESYNC_AFTER
 
 from .loop import ServoLoop
@@ -89,9 +90,8 @@ class ServoClock:
         self.loops = tuple(loops)
         self.period_ns = periods.pop() * 1_000_000
         self._rt_priority = realtime_priority
-        self._stop = threading.Event()
         self.failed: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, name="servo-clock", daemon=True)
+        self._thread = LoopThread(self._run, "servo-clock", join_within=5.0)
         self._gc = GcWatch()
         gc.callbacks.append(self._gc)
 
@@ -99,14 +99,13 @@ class ServoClock:
         self._thread.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5.0)
+        self._thread.stop()
 
     @property
     def alive(self) -> bool:
-        return self._thread.is_alive()
+        return self._thread.alive
 
-    def _run(self) -> None:
+    def _run(self, stop: threading.Event) -> None:
         realtime_thread(self._rt_priority, "servo clock")
         sys.setswitchinterval(GIL_SWITCH_INTERVAL)
         period = self.period_ns
@@ -115,7 +114,7 @@ class ServoClock:
         for i, loop in enumerate(self.loops):
             loop.begin(next_ns + wall_offset, i / len(self.loops))
         try:
-            while not self._stop.is_set():
+            while not stop.is_set():
                 now = time.monotonic_ns()
                 if now < next_ns:
                     time.sleep((next_ns - now) * 1e-9)
