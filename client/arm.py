@@ -27,7 +27,7 @@ import zenoh
 
 from jara_arm.schema import codec
 from jara_arm.schema.codes import ReturnCode, StateBit
-from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys, Service
+from jara_arm.schema.keys import DEFAULT_ARM, ArmKeys, Service, parse_alive
 from jara_arm.schema.operations import Interface, operation
 from jara_arm.schema.planner import accepted_motion
 from jara_arm.schema.types import Alarm, CarPosWithElbow, TimedJointPos, hg_matrix
@@ -39,6 +39,10 @@ from jara_arm.services.runtime.zenoh_args import default_endpoint, zenoh_config
 from .errors import ArmError, NoAnswer, Refused
 from .motion import Motion, Tracker
 from .operations import Operations
+
+
+#: An arm's services, in the order a missing one is named (the servo first: nothing runs without it).
+ARM_SERVICES = (Service.SERVO, Service.PLANNER, Service.COMMAND, Service.ALARM_MONITOR)
 
 
 def rel(dx: float = 0.0, dy: float = 0.0, dz: float = 0.0) -> CarPosWithElbow:
@@ -92,18 +96,9 @@ class Arm(Operations):
                  tb: TracebackType | None) -> None:
         self.close()
 
-    def wait_alive(self, services: Sequence[Service] = (Service.SERVO, Service.PLANNER, Service.COMMAND,
-                                                       Service.ALARM_MONITOR), timeout: float = 30.0) -> None:
-        """Until the liveliness token of each of the arm's ``services`` is up: they have started and answer
-        (connectivity, not health: ``getActiveAlarm`` says that). :class:`~.errors.NoAnswer` after ``timeout`` [s]."""
-        deadline = time.monotonic() + timeout
-        for service in services:
-            while not list(self.session.liveliness().get(self.keys.alive(service),
-                                                         timeout=max(0.1, min(1.0, deadline - time.monotonic())))):
-                if time.monotonic() > deadline:
-                    raise NoAnswer(f"{service.value} of {self.keys.arm} is not running (no liveliness token "
-                                   f"within {timeout:g} s)")
-                time.sleep(0.1)
+    def wait_alive(self, services: Sequence[Service] = ARM_SERVICES, timeout: float = 30.0) -> None:
+        """Until the liveliness token of each of the arm's ``services`` is up (:func:`wait_alive`)."""
+        wait_alive(self.session, self.keys, services, timeout)
 
     # -- the calls ------------------------------------------------------------------------
 
@@ -197,6 +192,30 @@ class Arm(Operations):
             yield samples()
         finally:
             sub.undeclare()
+
+
+def alive_services(session: zenoh.Session, keys: ArmKeys, timeout: float = 1.0) -> set[str]:
+    """The services of the arm whose liveliness token is up (one query for all of them)."""
+    return {parse_alive(str(reply.ok.key_expr))[1]
+            for reply in session.liveliness().get(keys.alive(), timeout=timeout) if reply.ok is not None}
+
+
+def wait_alive(session: zenoh.Session, keys: ArmKeys, services: Sequence[Service] = ARM_SERVICES,
+               timeout: float = 30.0) -> None:
+    """Until the liveliness token of each of the arm's ``services`` is up: they have started and answer
+    (connectivity, not health: ``getActiveAlarm`` says that). :class:`~.errors.NoAnswer` after ``timeout`` [s],
+    naming the services not up."""
+    deadline = time.monotonic() + timeout
+    while True:
+        up = alive_services(session, keys, timeout=max(0.1, min(1.0, deadline - time.monotonic())))
+        missing = [s.value for s in services if s.value not in up]
+        if not missing:
+            return
+        if time.monotonic() > deadline:
+            nor = f" (nor {', '.join(missing[1:])})" if len(missing) > 1 else ""
+            raise NoAnswer(f"{missing[0]} of {keys.arm} is not running{nor}: no liveliness token within "
+                           f"{timeout:g} s")
+        time.sleep(0.1)
 
 
 def _code(value: int) -> ReturnCode:

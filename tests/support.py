@@ -25,6 +25,7 @@ import numpy as np
 import zenoh
 
 from jara_arm.client import Arm
+from jara_arm.client.arm import wait_alive as client_wait_alive
 from jara_arm.launcher import cli
 from jara_arm.launcher.completion import bash_script
 from jara_arm.robots import RobotModel
@@ -164,17 +165,8 @@ def service_argv(service: Service, port: int, arm: str = "arm0", robot: str = "i
 
 def wait_alive(session: zenoh.Session, arm: str, services: Sequence[Service],
                timeout: float = 30.0) -> None:
-    keys = ArmKeys(arm)
-    deadline = time.monotonic() + timeout
-    missing = set(services)
-    while time.monotonic() < deadline:
-        for s in list(missing):
-            if list(session.liveliness().get(keys.alive(s), timeout=1.0)):
-                missing.discard(s)
-        if not missing:
-            return
-        time.sleep(0.1)
-    raise AssertionError(f"services not alive within {timeout} s: {sorted(missing)}")
+    """The client's ``wait_alive`` for ``arm`` (``NoAnswer`` naming the services not up)."""
+    client_wait_alive(session, ArmKeys(arm), services, timeout)
 
 
 class Client(Arm):

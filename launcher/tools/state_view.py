@@ -23,6 +23,7 @@ import numpy as np
 import zenoh
 
 from jara_arm.client import Arm, NoAnswer
+from jara_arm.client.arm import alive_services
 from jara_arm.schema import codec
 from jara_arm.schema.alarms import HEARTBEAT, format_code
 from jara_arm.schema.errors import JaraArmError
@@ -35,7 +36,6 @@ from jara_arm.services.runtime.arguments import positive_float
 from ..command import Command, setup_logging
 from ..session import add_arm, add_client_zenoh_arguments, listening, no_answer
 from .arm_state import format_state, read_state, sample_encoding
-from .wait import alive_services
 
 CLEAR = "\x1b[H\x1b[J"  #: cursor home, erase below: the ANSI redraw of a terminal
 _RING = 64  #: publications held between two refreshes, per key

@@ -16,11 +16,10 @@ import threading
 import time
 from typing import TextIO
 
-import zenoh
-
 from jara_arm.client import Arm, ArmError
+from jara_arm.client.arm import alive_services
 from jara_arm.schema.codes import StateBit
-from jara_arm.schema.keys import ArmKeys, Service, parse_alive
+from jara_arm.schema.keys import Service
 from jara_arm.services.runtime.arguments import positive_float
 
 from ..command import Command, setup_logging
@@ -73,12 +72,6 @@ class Check:
 
     met: bool
     seen: str
-
-
-def alive_services(session: zenoh.Session, keys: ArmKeys, timeout: float = 1.0) -> set[str]:
-    """The services of the arm whose liveliness token is up."""
-    return {parse_alive(str(reply.ok.key_expr))[1]
-            for reply in session.liveliness().get(keys.alive(), timeout=timeout) if reply.ok is not None}
 
 
 def check(client: Arm, condition: Condition) -> Check:
