@@ -355,5 +355,39 @@ class Operations(abc.ABC):
         result: float = self._call(Interface.EXT, OP.getSpeedOverride, args)[0]
         return result
 
+    def jogJoint(self, axis: int, speedRatio: float, leaseMs: int) -> None:
+        """jog one joint at speedRatio % of its max speed (setMaxSpeedJoint), the sign giving the direction.
+        The jog moves while the caller repeats the call within leaseMs; when the lease lapses, or on
+        jogStop, the arm brakes on its path, jerk-limited, and holds (a lapse is logged, not alarmed).
+        Refused while a motion runs or is queued (STATUS_ERR), while paused (STATUS_ERR), with the servo off
+        (NOT_SV_ON_ERR) or with an alarm (STATUS_ERR). The joint and Cartesian soft limits and the obstacles
+        stop it before it reaches them; the speed override scales it. A renewal may change the speed, not
+        the axis or the direction (STATUS_ERR: jogStop first). ``axis``: 1 = J1. ``speedRatio`` [%]: -100 ..
+        100, not 0. ``leaseMs`` [ms]: 50 .. 1000. A model-specific extension (``Ext``), not in the IDL."""
+        args: dict[str, Any] = {"axis": axis, "speedRatio": speedRatio, "leaseMs": leaseMs}
+        self._call(Interface.EXT, OP.jogJoint, args)
+
+    def jogCartesian(self, frame: str, axis: str, speedRatio: float, leaseMs: int) -> None:
+        """jog the control point along or about one axis of the robot frame (base) or of its own frame
+        (tool) at speedRatio % of the max Cartesian speed (setMaxSpeedCartesian: translation for x, y, z,
+        rotation for rx, ry, rz), keeping the other five components. Near a singularity it slows down, and
+        it can always back out. NG for a family that cannot hold that component (SPEC.md §7). The jog moves
+        while the caller repeats the call within leaseMs; when the lease lapses, or on jogStop, the arm
+        brakes on its path, jerk-limited, and holds (a lapse is logged, not alarmed). Refused while a motion
+        runs or is queued (STATUS_ERR), while paused (STATUS_ERR), with the servo off (NOT_SV_ON_ERR) or
+        with an alarm (STATUS_ERR). The joint and Cartesian soft limits and the obstacles stop it before it
+        reaches them; the speed override scales it. A renewal may change the speed, not the axis or the
+        direction (STATUS_ERR: jogStop first). ``frame``: base | tool. ``axis``: x | y | z | rx | ry | rz.
+        ``speedRatio`` [%]: -100 .. 100, not 0. ``leaseMs`` [ms]: 50 .. 1000. A model-specific extension
+        (``Ext``), not in the IDL."""
+        args: dict[str, Any] = {"frame": frame, "axis": axis, "speedRatio": speedRatio, "leaseMs": leaseMs}
+        self._call(Interface.EXT, OP.jogCartesian, args)
+
+    def jogStop(self) -> None:
+        """end the jog now: the arm brakes on its path and holds. OK (ignored, saying so) when no jog runs.
+        A model-specific extension (``Ext``), not in the IDL."""
+        args: dict[str, Any] = {}
+        self._call(Interface.EXT, OP.jogStop, args)
+
 
 __all__ = ["Operations"]

@@ -239,6 +239,14 @@ class ArmKeys:
         return f"{self.root}/Planner/control"
 
     @property
+    @_key('queryable (internal)', 'planner', '`MotionRequest` (a jog) → `ControlReply`', KeyEncoding.AS_REQUEST,
+          Traffic.REPLY)
+    def planner_jog(self) -> str:
+        """Queryable of the planner: ``Ext/jogJoint``, ``jogCartesian`` and ``jogStop`` (``MotionRequest``) ->
+        ``ControlReply``; served beside ``Planner/plan``, so a lease renewal never waits for a plan."""
+        return f"{self.root}/Planner/jog"
+
+    @property
     @_key('publisher (internal)', 'planner', '`PlannerProgress`', KeyEncoding.MSGPACK, Traffic.CONTROL)
     def planner_progress(self) -> str:
         """``PlannerProgress`` from the planner, on every change and at 10 Hz."""

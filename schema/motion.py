@@ -131,6 +131,9 @@ class MotionProgress:
     runningShare: float = wire(w.DOUBLE, "", "0 .. 1: the share of the running motion's samples passed (tau over "
                                "its last sample's index), 0 when none runs; while it is a head (not final), of the "
                                "samples known so far (its rest makes it fall); not counted in seq", default=0.0)
+    runningLeft: float = wire(w.DOUBLE, "samples", "what the running motion has left to its last sample buffered "
+                              "so far (a jog keeps this ahead of the servo); 0 when none runs; not counted in seq",
+                              default=0.0)
 
 
 MOTION_PROGRESS = struct(MotionProgress, strict=False, doc="Internal: servo -> planner, Servo/motion.")

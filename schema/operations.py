@@ -149,6 +149,21 @@ MAX_BLEND_DISTANCE = 0.1
 #: Largest speed override ``setSpeedOverride`` takes [%]: motions as planned. Not more: a motion is
 #: planned to its speed, acceleration and jerk limits, so running it faster would break them.
 MAX_SPEED_OVERRIDE = 100.0
+#: A jog's lease ``leaseMs`` [ms]: the jog moves while the caller renews it within this time. Below 50 ms a
+#: renewal over a loaded network would lapse between two calls; above 1 s a lost client would leave the arm
+#: moving for longer than a person holding a dead-man switch would accept.
+JOG_LEASE_MS = (50, 1000)
+#: ``jogCartesian``'s frames: the robot frame's axes, or the control point's own (tool frame).
+JOG_FRAMES = ("base", "tool")
+#: ``jogCartesian``'s axes: along x, y, z [m] or about them [rad].
+JOG_AXES = ("x", "y", "z", "rx", "ry", "rz")
+_JOG_RULES = (
+    "The jog moves while the caller repeats the call within leaseMs; when the lease lapses, or on jogStop, "
+    "the arm brakes on its path, jerk-limited, and holds (a lapse is logged, not alarmed). Refused while a "
+    "motion runs or is queued (STATUS_ERR), while paused (STATUS_ERR), with the servo off (NOT_SV_ON_ERR) "
+    "or with an alarm (STATUS_ERR). The joint and Cartesian soft limits and the obstacles stop it before "
+    "it reaches them; the speed override scales it. A renewal may change the speed, not the axis or the "
+    "direction (STATUS_ERR: jogStop first).")
 
 _EXT = (
     _op(_E, "setBlendDistance", "Model-specific extension (not in the IDL): blend distance d of the motions "
@@ -171,6 +186,22 @@ _EXT = (
     _op(_E, "getSpeedOverride", "Model-specific extension (not in the IDL): the speed override set with "
         "setSpeedOverride, as the servo last reported it.",
         outputs=[Member("ratio", w.DOUBLE, "%", "0 = hold on the path, 100 = as planned")]),
+    _op(_E, "jogJoint", "Model-specific extension (not in the IDL): jog one joint at speedRatio % of its max "
+        "speed (setMaxSpeedJoint), the sign giving the direction. " + _JOG_RULES,
+        inputs=[Member("axis", w.ULONG, "", "1 = J1"),
+                Member("speedRatio", w.DOUBLE, "%", "-100 .. 100, not 0"),
+                Member("leaseMs", w.ULONG, "ms", f"{JOG_LEASE_MS[0]} .. {JOG_LEASE_MS[1]}")]),
+    _op(_E, "jogCartesian", "Model-specific extension (not in the IDL): jog the control point along or about "
+        "one axis of the robot frame (base) or of its own frame (tool) at speedRatio % of the max Cartesian "
+        "speed (setMaxSpeedCartesian: translation for x, y, z, rotation for rx, ry, rz), keeping the other "
+        "five components. Near a singularity it slows down, and it can always back out. NG for a family "
+        "that cannot hold that component (SPEC.md §7). " + _JOG_RULES,
+        inputs=[Member("frame", w.STRING, "", " | ".join(JOG_FRAMES)),
+                Member("axis", w.STRING, "", " | ".join(JOG_AXES)),
+                Member("speedRatio", w.DOUBLE, "%", "-100 .. 100, not 0"),
+                Member("leaseMs", w.ULONG, "ms", f"{JOG_LEASE_MS[0]} .. {JOG_LEASE_MS[1]}")]),
+    _op(_E, "jogStop", "Model-specific extension (not in the IDL): end the jog now: the arm brakes on its "
+        "path and holds. OK (ignored, saying so) when no jog runs."),
 )
 
 COMMON: Mapping[str, Operation] = MappingProxyType({op.name: op for op in _COMMON})
@@ -250,6 +281,9 @@ class OP:
     getBlendDistance: Final = "getBlendDistance"
     setSpeedOverride: Final = "setSpeedOverride"
     getSpeedOverride: Final = "getSpeedOverride"
+    jogJoint: Final = "jogJoint"
+    jogCartesian: Final = "jogCartesian"
+    jogStop: Final = "jogStop"
 
 
 _spelled = {name for name in vars(OP) if not name.startswith("_")}

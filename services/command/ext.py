@@ -1,7 +1,9 @@
 """``Ext``: the command service's model-specific operations, outside the JARA_ARM IDL.
 
 Served at ``JARA_ARM/<arm>/Ext/<op>`` with the IDL's reply rules (``RETURN_ID``,
-``VALUE_ERR`` naming the field). The blend distance lives in the same
+``VALUE_ERR`` naming the field). The jogs go to the planner (``Planner/jog``), which owns the queue
+and the lease (``services/planner/jog.py``); the command checks the state first, as for a motion. The
+blend distance lives in the same
 :class:`Settings` as the Middle ones (``CommandMiddle`` owns them), so that
 every motion's ``MotionSettings`` snapshot carries it. The speed override is
 not a setting of the command: the servo holds it and applies it to the motion
@@ -11,11 +13,15 @@ does), and is read back from the planner's newest progress.
 
 from __future__ import annotations
 
-from jara_arm.schema.codec import Reply
+from typing import Any
+
+from jara_arm.schema.codec import Reply, encode_args
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import Refusal, WireError
-from jara_arm.schema.operations import MAX_SPEED_OVERRIDE, OP
-from jara_arm.schema.planner import ControlAction
+from jara_arm.schema.messages import NO_STATUS
+from jara_arm.schema.operations import EXT, MAX_SPEED_OVERRIDE, OP
+from jara_arm.schema.planner import ControlAction, MotionRequest
+from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.rpc import ok
 
 from .middle import CommandMiddle
@@ -60,3 +66,44 @@ class CommandExt:
             raise Refusal(ReturnCode.NG, f"{OP.getSpeedOverride}: no Planner/progress from the "
                           "planner service: is it running?")
         return ok(ratio=progress.override)
+
+    # -- jogging (services/planner/jog.py) --------------------------------------------------
+    def jogJoint(self, axis: int, speedRatio: float, leaseMs: int) -> Reply:
+        """Start or renew a joint jog. Not under ``core.serial``: a renewal must not wait while Middle's
+        thread plans a motion (the planner refuses a jog's start beside one)."""
+        return self._jog(OP.jogJoint, axis=axis, speedRatio=speedRatio, leaseMs=leaseMs)
+
+    def jogCartesian(self, frame: str, axis: str, speedRatio: float, leaseMs: int) -> Reply:
+        """Start or renew a Cartesian jog (as :meth:`jogJoint`)."""
+        return self._jog(OP.jogCartesian, frame=frame, axis=axis, speedRatio=speedRatio, leaseMs=leaseMs)
+
+    def jogStop(self) -> Reply:
+        """End the jog: the arm brakes on its path. Accepted in any state (nothing to stop: says so)."""
+        return self._forward(OP.jogStop, {}, soft_limits=())  # a stop plans nothing: no limits to ask the servo
+
+    def _jog(self, name: str, **args: Any) -> Reply:
+        core = self._middle.core
+        view = core.state.view()
+        # State first, values last (DECISIONS.md), as for a motion; the values are the planner's to check.
+        if not view.servo_on:
+            raise Refusal(ReturnCode.NOT_SV_ON_ERR, f"{name} refused: the servo is off: call {OP.servoON} first")
+        if view.alarm:
+            raise Refusal(ReturnCode.STATUS_ERR, f"{name} refused: an alarm is active ({OP.getActiveAlarm}, "
+                          f"then {OP.clearAlarms} and {OP.servoON})")
+        if view.paused:
+            raise Refusal(ReturnCode.STATUS_ERR, f"{name} refused: paused ({OP.resume} or {OP.stop} first)")
+        return self._forward(name, args)
+
+    def _forward(self, name: str, args: dict[str, Any], soft_limits: tuple[LimitValue, ...] | None = None) -> Reply:
+        core = self._middle.core
+        if soft_limits is None:
+            limits = core.servo.call(OP.getSoftLimitJoint)  # the servo's, as they are now
+            if not limits.ok:
+                raise Refusal(ReturnCode.NG, f"{name} refused: joint soft limits unavailable: {limits.comment}")
+            soft_limits = limits["softLimit"]
+        request = MotionRequest(name, encode_args(EXT[name], args), self._middle.settings.snapshot(soft_limits),
+                                core.state.servo_status() or NO_STATUS)
+        answer = core.planner.jog(request)
+        if answer.progress is not None:
+            core.state.on_progress(answer.progress)  # getState read next shows the jog moving
+        return answer.reply

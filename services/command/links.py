@@ -119,12 +119,13 @@ class PlannerAnswer:
 
 
 class PlannerLink(_Peer):
-    """``Planner/plan`` and ``Planner/control`` (schema.planner)."""
+    """``Planner/plan``, ``Planner/control`` and ``Planner/jog`` (schema.planner)."""
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, plan_timeout: float = PLAN_TIMEOUT,
                  control_timeout: float = CONTROL_TIMEOUT) -> None:
         super().__init__(session, Service.PLANNER, {keys.planner_plan: plan_timeout,
-                                                     keys.planner_control: control_timeout})
+                                                     keys.planner_control: control_timeout,
+                                                     keys.planner_jog: control_timeout})
         self._keys = keys
         self.plan_timeout = plan_timeout
         self.control_timeout = control_timeout
@@ -136,6 +137,14 @@ class PlannerLink(_Peer):
         if isinstance(plan, Reply):
             return PlannerAnswer(plan)
         return PlannerAnswer(Reply(plan.id, plan.comment), plan.motion, plan.progress)
+
+    def jog(self, request: MotionRequest) -> PlannerAnswer:
+        """The planner's verdict on a jog call (``Ext/jogJoint``, ``jogCartesian``, ``jogStop``)."""
+        jog = self.ask(self._keys.planner_jog, codec.encode_message(MOTION_REQUEST, request),
+                       functools.partial(codec.decode_message, CONTROL_REPLY))
+        if isinstance(jog, Reply):
+            return PlannerAnswer(jog)
+        return PlannerAnswer(Reply(jog.id, jog.comment), progress=jog.progress)
 
     def control(self, action: ControlAction, ratio: float = 100.0) -> PlannerAnswer:
         """The planner's verdict on ``action``; ``ratio`` [%] is the speed override (``OVERRIDE`` only)."""

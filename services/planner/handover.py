@@ -275,6 +275,26 @@ class Handover:
         log.info("the early start is refused: the arm stops on its head")
         return "it had started early and stops on its checked first samples"
 
+    # ------------------------------------------------------------------ jogging (jog.py)
+
+    def jog_start(self, head: Joints, epoch: int, final: bool) -> tuple[int, MotionReply]:
+        """Hand over a jog's first samples (``head`` (N, dof), from where the servo holds the arm), as a head
+        unless ``final``; its motion id and the servo's reply. Raises PlanRefused if the servo refuses."""
+        motion_id = self._last_id + 1
+        reply = self._hand(Trajectory(motion_id, epoch, 0, -1, final, self.dof, head.reshape(-1)))
+        if reply.id != ReturnCode.OK:
+            code = ReturnCode.NOT_SV_ON_ERR if reply.id == ReturnCode.NOT_SV_ON_ERR else ReturnCode.STATUS_ERR
+            raise PlanRefused(code, f"the servo did not take the jog: {reply.comment}")
+        with self._lock:
+            self._last_id, self._last = motion_id, None  # a jog is no motion a blend could leave
+        return motion_id, reply
+
+    def jog_extend(self, motion: int, epoch: int, k: int, rows: Joints, final: bool) -> MotionReply:
+        """The jog ``motion``'s next samples, ``rows[0]`` being its sample ``k`` (the last it holds); the
+        servo's reply (a refusal if the jog is gone: stopped, aborted, servo off). Raises PlanRefused if the
+        servo does not answer (its queue is then stopped)."""
+        return self._hand(Trajectory(motion, epoch, motion, k, final, self.dof, rows.reshape(-1)))
+
     def progress(self) -> PlannerProgress:
         """The queue and the pause now."""
         self._refresh()

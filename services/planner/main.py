@@ -28,17 +28,19 @@ from __future__ import annotations
 
 import argparse
 import logging
+import threading
 import time
 
 import zenoh
 
-from jara_arm.robots import RobotModel
+from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Encoding
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import Service
+from jara_arm.schema.operations import EXT, OP
 from jara_arm.schema.motion import (
     MOTION_CONTROL,
     MOTION_PROGRESS,
@@ -53,6 +55,7 @@ from jara_arm.schema.planner import (
     CONTROL_REPLY,
     CONTROL_REQUEST,
     MOTION_REQUEST,
+    MotionRequest,
     PLAN_REPLY,
     PLANNED_PATH,
     PLANNER_PROGRESS,
@@ -72,6 +75,7 @@ from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .collision import DEFAULT_MARGIN
 from .handover import Handover
+from .jog import JogCommand, Jogger
 from .planning import MotionPlanner
 from .request import PlanRefused, PlanRequest
 from .trajectory import Joints
@@ -86,7 +90,8 @@ _REPLAN = 3
 class PlannerService:
     """``Planner/plan`` and ``Planner/control`` queryables, and the hand-over to the servo."""
 
-    def __init__(self, ctx: ServiceContext, planner: PlanningProcess, heads: MotionPlanner, capacity: int) -> None:
+    def __init__(self, ctx: ServiceContext, planner: PlanningProcess, heads: MotionPlanner, capacity: int,
+                 obstacles: tuple[Obstacle, ...] = (), collision_margin: float = DEFAULT_MARGIN) -> None:
         session, keys = ctx.session, ctx.keys
         self.model = model = ctx.model
         self.planner = planner
@@ -105,10 +110,17 @@ class PlannerService:
         self.handover.start()
         ctx.closing(self.handover.close)
         ctx.watch("the progress relay thread", lambda: self.handover.alive)
-        # Planning may take a while: control queries have a worker of their own.
-        plan_key, control_key = keys.planner_plan, keys.planner_control
+        self.jogger = Jogger(model, self.handover, obstacles, collision_margin)
+        self.jogger.start()
+        ctx.closing(self.jogger.close)
+        ctx.watch("the jog thread", lambda: self.jogger.alive)
+        # A plan and a jog's start must not both take the empty queue: whichever comes second is refused.
+        self._gate = threading.Lock()
+        # Planning may take a while: control queries and jogs have a worker each of their own.
+        plan_key, control_key, jog_key = keys.planner_plan, keys.planner_control, keys.planner_jog
         ctx.serve_key(plan_key, lambda _k, p, e: (plan_key, self._answer_plan(p, e)), "planner-plan")
         ctx.serve_key(control_key, lambda _k, p, e: (control_key, self._answer_control(p, e)), "planner-control")
+        ctx.serve_key(jog_key, lambda _k, p, e: (jog_key, self._answer_jog(p, e)), "planner-jog")
 
     # ------------------------------------------------------------------ the servo
 
@@ -165,6 +177,13 @@ class PlannerService:
         except WireError as exc:
             log.info("motion request refused: %s", exc)
             return self._refused(ReturnCode.VALUE_ERR, str(exc))
+        with self._gate:
+            if self.jogger.active:
+                return self._refused(ReturnCode.STATUS_ERR, f"{wire.op} refused: the arm is jogging "
+                                     f"({OP.jogStop} first)")
+            return self._plan(wire)
+
+    def _plan(self, wire: MotionRequest) -> PlanReply:
         req: PlanRequest | None = None
         for _ in range(_REPLAN):
             try:
@@ -226,6 +245,45 @@ class PlannerService:
             motion_id, req.op, tuple(tuple(p) for p in self.planner.preview().tolist())))
         return PlanReply(int(ReturnCode.OK), accepted_comment(motion_id), motion_id,
                          tuple(motion.end.tolist()), motion.duration, progress)
+
+    def _answer_jog(self, payload: bytes, encoding: Encoding) -> bytes:
+        return codec.encode_message(CONTROL_REPLY, self.jog(payload, encoding), encoding)
+
+    def jog(self, payload: bytes, encoding: Encoding = Encoding.MSGPACK) -> ControlReply:
+        """``Ext/jogJoint`` / ``jogCartesian`` (start or renew) and ``Ext/jogStop`` (``jog.py``)."""
+        try:
+            wire = codec.decode_message(MOTION_REQUEST, payload, encoding)
+            if wire.op == OP.jogStop:
+                return ControlReply(int(ReturnCode.OK), self.jogger.stop(f"{OP.jogStop}"), self.handover.progress())
+            if wire.op not in (OP.jogJoint, OP.jogCartesian):
+                raise PlanRefused(ReturnCode.NOT_IMPLEMENTED, f"{wire.op!r} is not a jog")
+            cmd = JogCommand.decode(wire.op, codec.decode_args(EXT[wire.op], wire.args), self.model.axis_num)
+        except WireError as exc:
+            return ControlReply(int(ReturnCode.VALUE_ERR), str(exc), self.handover.progress())
+        except PlanRefused as exc:
+            return ControlReply(int(exc.code), exc.comment, self.handover.progress())
+        try:
+            if self.jogger.active:  # a renewal: never waits for a plan
+                code, comment = self.jogger.jog(cmd, wire.settings, lambda: self._jog_start(wire))
+            elif not self._gate.acquire(blocking=False):
+                raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: a motion is being planned")
+            else:
+                try:
+                    code, comment = self.jogger.jog(cmd, wire.settings, lambda: self._jog_start(wire))
+                finally:
+                    self._gate.release()
+        except PlanRefused as exc:
+            log.info("%s refused (%s): %s", cmd.op, exc.code.name, exc.comment)
+            return ControlReply(int(exc.code), exc.comment, self.handover.progress())
+        return ControlReply(int(code), comment, self.handover.progress())
+
+    def _jog_start(self, wire: MotionRequest) -> tuple[Joints, int]:
+        """Where a new jog starts and the servo's epoch; refused unless nothing is queued, moving or paused."""
+        start, epoch = self.handover.start_point(wire.servo)
+        if not self.handover.can_start_early():
+            raise PlanRefused(ReturnCode.STATUS_ERR, f"{wire.op} refused: a motion runs, is queued or is paused "
+                              f"(wait for it, or {OP.stop} it)")
+        return start, epoch
 
     def _refused(self, code: ReturnCode, comment: str) -> PlanReply:
         return PlanReply(int(code), comment, 0, (), 0.0, self.handover.progress())
@@ -289,7 +347,8 @@ class PlannerProgram(ArmService):
 
     def start(self, ctx: ServiceContext) -> None:
         assert self._planner is not None and self._heads is not None  # before_session() ran
-        PlannerService(ctx, self._planner, self._heads, ctx.options.queue_capacity)
+        PlannerService(ctx, self._planner, self._heads, ctx.options.queue_capacity,
+                       ctx.model.obstacles + tuple(ctx.options.obstacle or ()), ctx.options.collision_margin)
         m = ctx.model
         ctx.up(f"planner up: arm {ctx.keys.arm}, robot {m.name} ({m.axis_num} axes"
                f"{' + gripper' if m.has_gripper else ''}), early start {ctx.options.early_start_ms:g} ms, "

@@ -61,6 +61,9 @@ START_TOLERANCE = 1e-6
 #: A head keeps this share of the stopping distance it has left as margin [-]: the scale
 #: follows a cap that falls every cycle, with a lag.
 HEAD_MARGIN = 0.5
+#: A head whose rest arrives after this many samples passed drops them [samples]: only a jog's, which is
+#: extended for as long as it is held; an early start's head is 30 samples, and keeps its share of its motion.
+TRIM_AFTER = 2000
 
 
 @dataclasses.dataclass
@@ -207,7 +210,8 @@ class Interpolator:
         end = self.queue[0].end if self.queue else 0
         share = self.tau / end if end > 0 else 0.0
         return MotionProgress(Time.now(), epoch, self.running, queued, head, done, discarded, paused,
-                              moving, stopping, override * 100.0, self.scale, tail, started, seq, share)
+                              moving, stopping, override * 100.0, self.scale, tail, started, seq, share,
+                              max(0.0, end - self.tau))
 
     # -- from the planner (called on the loop's thread, between cycles) ------------------
     def submit(self, traj: Buffered, epoch: int, after: int, splice: int, held: np.ndarray,
@@ -248,11 +252,15 @@ class Interpolator:
         if gap > START_TOLERANCE:
             return TrajectoryRefusal.START, f"it starts {gap:.3g} away from sample {k} of motion {last.motion}"
         if traj.motion == last.motion:  # the rest of a head
-            last.q = np.concatenate([last.q[:k], traj.q])
+            # A jog's head is extended for as long as it runs: the samples the servo has passed go, so that an
+            # extension costs the same after a minute as after a second (not an early start's short head).
+            cut = int(self.tau) if len(self.queue) == 1 and self.tau >= TRIM_AFTER else 0
+            last.q = np.concatenate([last.q[cut:k], traj.q])
+            self.tau -= cut
             last.final, last.rate, last.full = traj.final, min(last.rate, traj.rate), None
-            if last.screened is not None and traj.screened is not None and traj.limits is last.limits and k >= 1:
+            if last.screened is not None and traj.screened is not None and traj.limits is last.limits and k > cut:
                 # The segment into the joint ends on the rest's first sample, not the head's: checked in full.
-                last.screened = np.concatenate([last.screened[:k - 1], [False], traj.screened])
+                last.screened = np.concatenate([last.screened[cut:k - 1], [False], traj.screened])
             else:
                 last.screened = None
             return None, "joined to its head"

@@ -1,0 +1,211 @@
+"""Jogging on the live system (``Ext/jogJoint``, ``Ext/jogCartesian``, ``Ext/jogStop``; ``services/planner/jog.py``).
+
+What a person at a pendant checks: the arm moves the right way at the right speed while the button is held,
+stops once it is released (the lease lapses), stops at a soft limit or before an obstacle and not past it,
+keeps the tool's orientation when jogging along a tool axis, and is refused (nothing moving) when it should be.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+import pytest
+
+from jara_arm.schema.codes import ReturnCode, StateBit
+from jara_arm.schema.keys import Service
+from jara_arm.schema.operations import OP
+from jara_arm.schema.types import LimitValue
+
+from .harness import RecordingArm, launched
+from .support import client_session
+
+Arm = RecordingArm
+
+#: The braking after a lapse may take [s]: the jog thread's tick (10 ms), the stop's way to the servo, and
+#: the servo's scale falling from 1 to 0 at its slowest jerk-limited rate (1/20 s + 2 x 20 ms).
+BRAKING = 0.15
+
+
+@pytest.fixture(scope="module", params=["iiwa"])
+def robot_name(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
+
+
+def hold(arm: Arm, name: str, args: dict[str, Any], seconds: float, every: float = 0.05,
+         refused: ReturnCode | None = None) -> float:
+    """Renew the jog ``name`` every ``every`` [s] for ``seconds``, each reply OK, or until one is ``refused``
+    with that code (the jog stopped before a limit: the test then requires one); the wall time of the last
+    renewal sent [s]."""
+    end = time.monotonic() + seconds
+    last = time.time()
+    while time.monotonic() < end:
+        last = time.time()
+        reply = arm.client.ext(name, args)
+        if refused is not None and reply.id == refused:
+            return last
+        assert reply.id == ReturnCode.OK, f"{name} {args}: {reply}\n{arm.explain()}"
+        time.sleep(every)
+    assert refused is None, f"{name} {args} held {seconds} s without being refused\n{arm.explain()}"
+    return last
+
+
+def speeds(t: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Per-sample joint speeds [rad/s] of recorded feedback."""
+    return np.diff(q, axis=0) / np.diff(t)[:, None]
+
+
+def test_live_a_held_joint_jog_moves_the_right_way_at_its_speed_and_stops_when_released(arm: Arm) -> None:
+    vmax = arm.client.middle(OP.getMaxSpeedJoint)["speed"][0]
+    q0 = arm.joints()
+    arm.record()
+    lease = 0.2
+    last = hold(arm, OP.jogJoint, {"axis": 1, "speedRatio": -20.0, "leaseMs": int(lease * 1e3)}, 1.0)
+    arm.wait_rest()
+    t, q = arm.recorded_through(last + lease + 1.0)
+    v = speeds(t, q)
+    # The right joint, the right way, at 20 % of its max speed.
+    assert q[-1][0] < q0[0] - 0.1, f"J1 went from {q0[0]} to {q[-1][0]}"
+    assert np.abs(q[-1][1:arm.model.axis_num] - q0[1:arm.model.axis_num]).max() < 1e-3, (q0, q[-1])
+    peak = float(np.abs(v[:, 0]).max())
+    assert peak == pytest.approx(0.2 * vmax, rel=0.05), f"peak J1 speed {peak}, asked {0.2 * vmax}"
+    # Released: moving still while the lease runs, at rest within the lease and the braking.
+    moving = t[1:][np.abs(v[:, 0]) > 1e-3]
+    stopped_after = float(moving[-1]) - last
+    assert stopped_after < lease + BRAKING, f"at rest {stopped_after:.3f} s after the last renewal"
+    assert stopped_after > lease - 0.05, f"stopped {stopped_after:.3f} s after the last renewal: before its lease"
+    print(f"jog J1 -20 %: peak {peak:.3f} rad/s of {0.2 * vmax:.3f}; at rest {stopped_after * 1e3:.0f} ms after "
+          f"the last renewal (lease {lease * 1e3:.0f} ms)")
+    assert not arm.state() & (StateBit.ALARM | StateBit.MOVING)
+
+
+def test_live_jog_stop_brakes_at_once(arm: Arm) -> None:
+    arm.record()
+    hold(arm, OP.jogJoint, {"axis": 2, "speedRatio": 30.0, "leaseMs": 1000}, 0.5)
+    asked = time.time()
+    reply = arm.client.ext(OP.jogStop)
+    assert reply.id == ReturnCode.OK and "braking" in reply.comment, reply
+    arm.wait_rest()
+    t, q = arm.recorded_through(asked + 0.5)
+    v = speeds(t, q)
+    moving = t[1:][np.abs(v[:, 1]) > 1e-3]
+    assert float(moving[-1]) - asked < BRAKING, f"at rest {float(moving[-1]) - asked:.3f} s after jogStop"
+    # Nothing to stop: says so.
+    again = arm.client.ext(OP.jogStop)
+    assert again.id == ReturnCode.OK and "ignored" in again.comment, again
+
+
+def test_live_a_joint_jog_stops_at_the_soft_limit_not_past_it(arm: Arm) -> None:
+    q0 = arm.joints()
+    limits = list(arm.model.hard_limits)
+    upper = float(q0[3] + 0.15)
+    limits[3] = LimitValue(upper=upper, lower=limits[3].lower)
+    arm.ok(arm.common(OP.setSoftLimitJoint, {"softLimit": limits}))
+    arm.record()
+    hold(arm, OP.jogJoint, {"axis": 4, "speedRatio": 60.0, "leaseMs": 300}, 3.0, refused=ReturnCode.VALUE_ERR)
+    arm.wait_rest()
+    q = arm.recorded()
+    assert q[:, 3].max() <= upper + 1e-4, f"J4 reached {q[:, 3].max()}, past its soft limit {upper}"
+    assert q[-1, 3] > upper - 1e-3, f"J4 stopped at {q[-1, 3]}, short of its soft limit {upper}"
+    # Held against it: refused, naming the limit; nothing moves.
+    reply = arm.client.ext(OP.jogJoint, {"axis": 4, "speedRatio": 60.0, "leaseMs": 300})
+    assert reply.id == ReturnCode.VALUE_ERR and "J4" in reply.comment and "soft limit" in reply.comment, reply
+    assert not arm.state() & (StateBit.ALARM | StateBit.MOVING), arm.explain()
+    # ... and the other way it goes.
+    hold(arm, OP.jogJoint, {"axis": 4, "speedRatio": -60.0, "leaseMs": 300}, 0.3)
+    arm.wait_rest()
+    assert arm.joints()[3] < upper - 0.01
+
+
+def test_live_a_tool_frame_jog_keeps_the_orientation_and_goes_straight(arm: Arm) -> None:
+    T0 = arm.pose()
+    arm.record()
+    hold(arm, OP.jogCartesian, {"frame": "tool", "axis": "z", "speedRatio": 40.0, "leaseMs": 200}, 0.6)
+    arm.wait_rest()
+    q = arm.recorded()
+    poses = [arm.fk(x) for x in q[::10]] + [arm.fk(q[-1])]
+    turned = max(np.linalg.norm(_rotvec(T[:3, :3] @ T0[:3, :3].T)) for T in poses)
+    assert turned < 1e-3, f"the orientation turned by {turned * 1e3:.2f} mrad"
+    p = np.array([T[:3, 3] for T in poses])
+    axis = T0[:3, 2]  # the tool's z in the arm frame
+    travel = (p[-1] - T0[:3, 3]) @ axis
+    off = np.linalg.norm((p - T0[:3, 3]) - np.outer((p - T0[:3, 3]) @ axis, axis), axis=1).max()
+    assert travel > 0.02, f"moved {travel * 1e3:.1f} mm along the tool's z"
+    assert off < 5e-4, f"left the tool's z axis by {off * 1e3:.2f} mm"
+    assert not arm.state() & StateBit.ALARM, arm.explain()
+
+
+def test_live_jogs_and_motions_refuse_each_other(arm: Arm) -> None:
+    target = np.array(arm.model.ready_pose) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 20}))
+    arm.ok(arm.middle(OP.movePTPJointAbs, {"jointPoints": target.tolist()}))
+    reply = arm.client.ext(OP.jogJoint, {"axis": 1, "speedRatio": 20.0, "leaseMs": 200})
+    assert reply.id == ReturnCode.STATUS_ERR and "motion" in reply.comment, reply
+    arm.ok(arm.middle(OP.stop))
+    arm.idle()
+    jog = arm.client.ext(OP.jogJoint, {"axis": 1, "speedRatio": 20.0, "leaseMs": 1000})
+    assert jog.id == ReturnCode.OK, jog
+    move = arm.middle(OP.movePTPJointAbs, {"jointPoints": list(arm.model.ready_pose)})
+    assert move.id == ReturnCode.STATUS_ERR and "jog" in move.comment, move
+    other = arm.client.ext(OP.jogJoint, {"axis": 2, "speedRatio": 20.0, "leaseMs": 200})
+    assert other.id == ReturnCode.STATUS_ERR and OP.jogStop in other.comment, other
+    arm.ok(arm.client.ext(OP.jogStop))
+    arm.wait_rest()
+    assert not arm.state() & StateBit.ALARM, arm.explain()
+
+
+@pytest.mark.parametrize("name, args, field", [
+    (OP.jogJoint, {"axis": 0, "speedRatio": 20.0, "leaseMs": 200}, "axis"),
+    (OP.jogJoint, {"axis": 8, "speedRatio": 20.0, "leaseMs": 200}, "axis"),
+    (OP.jogJoint, {"axis": 1, "speedRatio": 0.0, "leaseMs": 200}, "speedRatio"),
+    (OP.jogJoint, {"axis": 1, "speedRatio": 101.0, "leaseMs": 200}, "speedRatio"),
+    (OP.jogJoint, {"axis": 1, "speedRatio": 20.0, "leaseMs": 10}, "leaseMs"),
+    (OP.jogJoint, {"axis": 1, "speedRatio": 20.0, "leaseMs": 5000}, "leaseMs"),
+    (OP.jogCartesian, {"frame": "world", "axis": "x", "speedRatio": 20.0, "leaseMs": 200}, "frame"),
+    (OP.jogCartesian, {"frame": "base", "axis": "w", "speedRatio": 20.0, "leaseMs": 200}, "axis"),
+])
+def test_live_bad_jog_values_are_refused_naming_the_field_and_nothing_moves(arm: Arm, name: str, args: dict,
+                                                                             field: str) -> None:
+    before = arm.joints()
+    reply = arm.client.ext(name, args)
+    assert reply.id == ReturnCode.VALUE_ERR and reply.comment.startswith(field), reply
+    assert not arm.state() & StateBit.MOVING
+    assert np.abs(arm.joints() - before).max() < 1e-6
+
+
+def test_live_a_jog_is_refused_with_the_servo_off(arm: Arm) -> None:
+    arm.ok(arm.common(OP.servoOFF))
+    reply = arm.client.ext(OP.jogJoint, {"axis": 1, "speedRatio": 20.0, "leaseMs": 200})
+    assert reply.id == ReturnCode.NOT_SV_ON_ERR, reply
+
+
+def test_live_a_jog_toward_an_obstacle_stops_before_contact() -> None:
+    """A box in front of the tool: jogging down the robot's z stops short of it, with no alarm."""
+    from .test_collision import _box_ahead  # the box the collision tests use, in front of the arm
+
+    box = _box_ahead()
+    with launched("--robot", "iiwa", "--obstacle", box.argument()) as (proc, port), client_session(port) as session:
+        arm = RecordingArm(session, "iiwa", proc=proc)
+        arm.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
+        arm.ok(arm.common(OP.servoON))
+        arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 100}))
+        arm.record()
+        hold(arm, OP.jogJoint, {"axis": 1, "speedRatio": 40.0, "leaseMs": 300}, 6.0, refused=ReturnCode.VALUE_ERR)
+        arm.wait_rest()
+        reply = arm.client.ext(OP.jogJoint, {"axis": 1, "speedRatio": 40.0, "leaseMs": 300})
+        assert reply.id == ReturnCode.VALUE_ERR and "obstacle 1" in reply.comment, reply
+        assert not arm.state() & StateBit.ALARM, arm.explain()
+        # Where it stopped, every link keeps its clearance.
+        from jara_arm.services.planner.collision import PathChecker
+
+        q = arm.recorded()
+        checker = PathChecker(arm.model, (*arm.model.obstacles, box))
+        assert checker.check(q[::20]) is None, "the jog went into the box's margin"
+        assert np.abs(q[-1][0] - q[0][0]) > 0.05, "the jog did not move toward the box"
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    import pinocchio as pin
+
+    return np.asarray(pin.log3(R))
