@@ -389,5 +389,16 @@ class Operations(abc.ABC):
         args: dict[str, Any] = {}
         self._call(Interface.EXT, OP.jogStop, args)
 
+    def teach(self, name: str) -> tuple[tuple[float, ...], CarPosWithElbow]:
+        """store where the arm is now as the point `name` of the arm's program file (the command service's
+        --program; `jara-arm up --program-dir DIR` makes it DIR/<arm>.program.yaml, the working directory by
+        default): its joints and its control point's pose, elbow and posture, as getFeedbackPosJoint and
+        getFeedbackPosCartesian give them. A point of that name is replaced; the rest of the file stays as
+        it is (docs/programs.md). Refused while the arm moves (STATUS_ERR). ``name``: letters, digits, _ and
+        -, not starting with a digit. A model-specific extension (``Ext``), not in the IDL."""
+        args: dict[str, Any] = {"name": name}
+        out = self._call(Interface.EXT, OP.teach, args)
+        return (out[0], out[1])
+
 
 __all__ = ["Operations"]

@@ -202,6 +202,14 @@ _EXT = (
                 Member("leaseMs", w.ULONG, "ms", f"{JOG_LEASE_MS[0]} .. {JOG_LEASE_MS[1]}")]),
     _op(_E, "jogStop", "Model-specific extension (not in the IDL): end the jog now: the arm brakes on its "
         "path and holds. OK (ignored, saying so) when no jog runs."),
+    _op(_E, "teach", "Model-specific extension (not in the IDL): store where the arm is now as the point "
+        "`name` of the arm's program file (the command service's --program; `jara-arm up --program-dir "
+        "DIR` makes it DIR/<arm>.program.yaml, the working directory by default): its joints and its control "
+        "point's pose, elbow and posture, as getFeedbackPosJoint and getFeedbackPosCartesian give them. A "
+        "point of that name is replaced; the rest of the file stays as it is (docs/programs.md). Refused "
+        "while the arm moves (STATUS_ERR).",
+        inputs=[Member("name", w.STRING, "", "letters, digits, _ and -, not starting with a digit")],
+        outputs=[Member("jointPoint", w.JOINT_POS, _AXIS), Member("carPoint", w.CAR_POS_WITH_ELBOW, _CAR)]),
 )
 
 COMMON: Mapping[str, Operation] = MappingProxyType({op.name: op for op in _COMMON})
@@ -284,6 +292,7 @@ class OP:
     jogJoint: Final = "jogJoint"
     jogCartesian: Final = "jogCartesian"
     jogStop: Final = "jogStop"
+    teach: Final = "teach"
 
 
 _spelled = {name for name in vars(OP) if not name.startswith("_")}

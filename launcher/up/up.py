@@ -67,6 +67,8 @@ class UpSettings:
     health: Health = SAME_HOST  # passed to every service (--timing, --hung-after)
     #: more endpoints of the cell bus (``--bus-listen``), for services of other hosts; the private one is always there
     bus: tuple[str, ...] = ()
+    #: where each arm's program file is (``<dir>/<arm>.program.yaml``, what Ext/teach writes); "": the working directory
+    program_dir: str = ""
 
 
 #: SCHED_FIFO priority of the cell bus's threads: below the servo (40). The client gateway runs at
@@ -144,6 +146,8 @@ def child_argv(service: ServiceSpec, arm: ArmSpec, settings: UpSettings, bus: st
     if service.service is Service.SERVO:
         for box in settings.hidden_obstacles:
             argv += ["--obstacle", box]
+    if service.service is Service.COMMAND and settings.program_dir:
+        argv += ["--program", os.path.join(os.path.abspath(settings.program_dir), f"{arm.arm}.program.yaml")]
     return argv
 
 
@@ -332,6 +336,9 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
                         help="a box in the simulated world that the planners are not told of (an "
                         "unmodelled obstacle, as for the overload alarm): centre and half extents [m] "
                         "(repeatable)")
+    parser.add_argument("--program-dir", default="", metavar="DIR",
+                        help="where each arm's program file is, DIR/<arm>.program.yaml: Ext/teach stores its "
+                        "points there (default: the working directory)")
     parser.add_argument("--bus-listen", action="append", default=[], metavar="ENDPOINT",
                         help="also open the cell bus (where the services meet; private by default) on "
                         "ENDPOINT, for services of other hosts; clients use --listen (repeatable)")
@@ -355,7 +362,8 @@ def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> UpSe
             parser.error(f"--arm {item}: arm {arm!r} is given twice")
         arms.append(ArmSpec(arm, robot))
     return UpSettings(tuple(arms), router_settings(args, parser), args.log_level, tuple(args.obstacle),
-                      tuple(args.hidden_obstacle), args.demo, health_from_args(args), tuple(args.bus_listen))
+                      tuple(args.hidden_obstacle), args.demo, health_from_args(args), tuple(args.bus_listen),
+                      args.program_dir)
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:

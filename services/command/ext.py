@@ -13,6 +13,8 @@ does), and is read back from the planner's newest progress.
 
 from __future__ import annotations
 
+import time
+from pathlib import Path
 from typing import Any
 
 from jara_arm.schema.codec import Reply, encode_args
@@ -21,9 +23,15 @@ from jara_arm.schema.errors import Refusal, WireError
 from jara_arm.schema.messages import NO_STATUS
 from jara_arm.schema.operations import EXT, MAX_SPEED_OVERRIDE, OP
 from jara_arm.schema.planner import ControlAction, MotionRequest
+from jara_arm.schema.program import NAME, teach
 from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.rpc import ok
 
+from .feedback import JointFeedback
+
+#: ``teach`` waits this long for a moving arm to come to rest before it refuses [s]: the end of a motion the
+#: caller saw complete reaches this service's state a few ms later, and the arm settles after its last sample.
+TEACH_SETTLE = 1.0
 from .middle import CommandMiddle
 
 
@@ -31,8 +39,12 @@ class CommandExt:
     """The Ext interface; runs on its own RPC thread, changing the settings through ``middle``
     and reaching the planner and the state through ``middle.core``."""
 
-    def __init__(self, middle: CommandMiddle) -> None:
+    def __init__(self, middle: CommandMiddle, feedback: JointFeedback | None = None,
+                 program: Path | None = None) -> None:
+        """``feedback``: the joints ``teach`` stores; ``program``: the file it writes them to (``--program``)."""
         self._middle = middle  # its core is read per call: the settings-only tests build it without one
+        self._feedback = feedback
+        self._program = program
 
     def setBlendDistance(self, distance: float) -> Reply:
         """For the motions accepted from now on; queued ones keep the distance they were accepted with."""
@@ -107,3 +119,29 @@ class CommandExt:
         if answer.progress is not None:
             core.state.on_progress(answer.progress)  # getState read next shows the jog moving
         return answer.reply
+
+    # -- teaching (schema/program.py) -------------------------------------------------------
+    def teach(self, name: str) -> Reply:
+        """Where the arm is, as feedback says, into the program file under ``name``."""
+        if not NAME.match(name):
+            raise WireError("name", f"letters, digits, _ and -, not starting with a digit, got {name!r}")
+        if self._program is None or self._feedback is None:
+            raise Refusal(ReturnCode.NG, f"{OP.teach}: this command service has no program file (--program)")
+        # A motion that just ended may still settle, or its end not have reached this service: a moment's grace.
+        deadline = time.monotonic() + TEACH_SETTLE
+        while self._middle.core.state.view().moving:
+            if time.monotonic() > deadline:
+                raise Refusal(ReturnCode.STATUS_ERR, f"{OP.teach} refused: the arm moves; teach where it holds")
+            time.sleep(0.01)
+        joints = self._feedback.joints()
+        pose = self._middle.getFeedbackPosCartesian()
+        if not joints.ok or not pose.ok:
+            bad = joints if not joints.ok else pose
+            raise Refusal(ReturnCode(bad.id), f"{OP.teach}: {bad.comment}")
+        car = pose["pos"]
+        n = self._middle.core.robot.axis_num
+        try:
+            teach(self._program, name, joints["pos"][:n], car.carPos, car.elbow, car.structFlag)
+        except (OSError, ValueError) as exc:
+            raise Refusal(ReturnCode.NG, f"{OP.teach}: cannot write {self._program}: {exc}") from None
+        return ok(f"OK: taught {name} into {self._program}", jointPoint=joints["pos"], carPoint=car)

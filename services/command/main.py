@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
 from jara_arm.schema import codec
 from jara_arm.schema.encoding import Encoding
@@ -61,6 +62,9 @@ class CommandService(ArmService):
                             help=f"time the servo has to answer a query [s] (default: {SERVO_TIMEOUT:g})")
         parser.add_argument("--plan-timeout", type=positive_float, default=PLAN_TIMEOUT, metavar="S",
                             help=f"time the planner has to plan one motion [s] (default: {PLAN_TIMEOUT:g})")
+        parser.add_argument("--program", default="{arm}.program.yaml", metavar="FILE",
+                            help="the program file Ext/teach stores points in; {arm} is the arm's id "
+                            "(default: {arm}.program.yaml in the working directory)")
 
     def start(self, ctx: ServiceContext) -> None:
         session, keys, robot, opts = ctx.session, ctx.keys, ctx.model, ctx.options
@@ -83,7 +87,8 @@ class CommandService(ArmService):
         ctx.serve(keys.interface(Interface.COMMON), COMMON, CommandCommon(core, feedback), "command-common")
         middle = CommandMiddle(core, settings, feedback, cartesian, settings_pub.changed)
         ctx.serve(keys.interface(Interface.MIDDLE), MIDDLE, middle, "command-middle")
-        ctx.serve(keys.interface(Interface.EXT), EXT, CommandExt(middle), "command-ext")
+        program = Path(opts.program.replace("{arm}", keys.arm)).resolve()
+        ctx.serve(keys.interface(Interface.EXT), EXT, CommandExt(middle, feedback, program), "command-ext")
         alarms = core.monitor.alarm_list()  # a restarted command knows the active alarms at once
         if alarms is not None:
             tracker.on_alarms(alarms)

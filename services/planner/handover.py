@@ -289,11 +289,12 @@ class Handover:
             self._last_id, self._last = motion_id, None  # a jog is no motion a blend could leave
         return motion_id, reply
 
-    def jog_extend(self, motion: int, epoch: int, k: int, rows: Joints, final: bool) -> MotionReply:
-        """The jog ``motion``'s next samples, ``rows[0]`` being its sample ``k`` (the last it holds); the
-        servo's reply (a refusal if the jog is gone: stopped, aborted, servo off). Raises PlanRefused if the
-        servo does not answer (its queue is then stopped)."""
-        return self._hand(Trajectory(motion, epoch, motion, k, final, self.dof, rows.reshape(-1)))
+    def jog_extend(self, motion: int, epoch: int, rows: Joints, final: bool) -> MotionReply:
+        """The jog ``motion``'s next samples, ``rows[0]`` being the last sample it holds (joined at its end: the
+        servo drops a long head's passed samples, so an index would not do); the servo's reply (a refusal if
+        the jog is gone: stopped, aborted, servo off). Raises PlanRefused if the servo does not answer (its
+        queue is then stopped)."""
+        return self._hand(Trajectory(motion, epoch, motion, -1, final, self.dof, rows.reshape(-1)))
 
     def progress(self) -> PlannerProgress:
         """The queue and the pause now."""

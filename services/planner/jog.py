@@ -322,7 +322,12 @@ class Jogger:
                 if not jog.cmd.same_jog(cmd):
                     raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: jogging {jog.cmd.describe()}; "
                                       f"{OP.jogStop} first (or let its lease lapse)")
-                jog.cmd, jog.lease_until = cmd, time.monotonic() + cmd.lease
+                now = time.monotonic()
+                if now > jog.lease_until:  # lapsed: the jog thread is stopping it, a late call does not revive it
+                    raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: the lease of jog "
+                                      f"{jog.cmd.describe()} lapsed {(now - jog.lease_until) * 1e3:.0f} ms ago: "
+                                      "it brakes; call again once it holds")
+                jog.cmd, jog.lease_until = cmd, now + cmd.lease
                 jog.speed = self._speed(cmd, settings_of=jog.settings)
                 return ReturnCode.OK, f"OK: jogging {cmd.describe()} at {cmd.ratio * 100:.0f} %"
             ended = self._ended
@@ -500,8 +505,7 @@ class Jogger:
         held = jog.q_end.copy()
         rows, ended = self._extend(jog, count)
         # Each extension starts on the last sample the servo holds (the splice point), repeated.
-        reply = self.handover.jog_extend(jog.motion, jog.epoch, jog.samples - 1, np.vstack([held, rows]),
-                                         final=bool(ended))
+        reply = self.handover.jog_extend(jog.motion, jog.epoch, np.vstack([held, rows]), final=bool(ended))
         if reply.id != ReturnCode.OK:
             log.info("jog %s ended: the servo did not take its extension: %s", jog.cmd.describe(), reply.comment)
             self._jog = None

@@ -1,0 +1,187 @@
+"""Teaching points and running programs (``Ext/teach``, ``jara-arm program check`` and ``run``;
+``schema/program.py``, ``launcher/program/``), on the live system and from the command line.
+
+What a person commissioning a cell checks: points taught where the arm was, a program of them that runs and
+reaches each within 0.5 mm, and a program with a mistake that says where (line and column) and moves nothing.
+"""
+
+from __future__ import annotations
+
+import re
+import textwrap
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jara_arm.client import rel
+from jara_arm.schema.codes import ReturnCode, StateBit
+from jara_arm.schema.keys import Service
+from jara_arm.schema.operations import OP
+from jara_arm.schema.program import ProgramError, load, parse
+
+from .harness import LiveArm, launched, listening
+from .support import LAUNCHER, Proc, client_session
+from .test_collision import TURN, _box_ahead
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[LiveArm, Path]]:
+    """The iiwa with a box 0.5 rad ahead of its J1 (test_collision.py's), its program file in a folder of
+    the test's own (``--program-dir``)."""
+    folder = tmp_path_factory.mktemp("programs")
+    with launched("--robot", "iiwa", "--obstacle", _box_ahead().argument(), "--program-dir", str(folder)) as (
+            proc, port), client_session(port) as session:
+        arm = LiveArm(session, "iiwa", proc=proc)
+        arm.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
+        yield arm, folder
+
+
+@pytest.fixture
+def arm(cell: tuple[LiveArm, Path]) -> LiveArm:
+    cell[0].reset()
+    return cell[0]
+
+
+def program_cli(arm: LiveArm, *args: str, timeout: float = 120.0) -> Proc:
+    """``jara-arm program ARGS`` against the live arm, ended."""
+    proc = Proc([*LAUNCHER, "program", *args, "--connect", listening(arm.proc)])
+    proc.popen.wait(timeout)
+    proc.stop()  # ended: its output read to the end
+    return proc
+
+
+def taught(arm: LiveArm, name: str) -> None:
+    reply = arm.client.ext(OP.teach, {"name": name})
+    assert reply.id == ReturnCode.OK, reply
+    # What it stored is where the arm is.
+    assert np.abs(np.asarray(reply["jointPoint"]) - arm.joints()).max() < 1e-9
+
+
+def test_live_teach_then_a_six_step_program_reaches_every_point(arm: LiveArm, cell: tuple[LiveArm, Path]) -> None:
+    path = cell[1] / "arm0.program.yaml"
+    path.unlink(missing_ok=True)
+    a = arm.client
+    a.setSpeedCartesian(50)
+    taught(arm, "a")
+    a.moveLinearCartesianRel(rel(dz=-0.08))
+    taught(arm, "b")
+    a.moveLinearCartesianRel(rel(dx=0.05, dy=0.05))
+    taught(arm, "v")
+    a.moveLinearCartesianRel(rel(dx=0.05, dy=-0.05))
+    taught(arm, "c")
+    a.movePTPJointAbs(arm.model.ready_pose)
+    points = load(path).points
+    assert set(points) == {"a", "b", "v", "c"}
+    # The steps after the taught points, written by hand as a user would (a comment that teach keeps).
+    text = path.read_text()
+    steps = textwrap.dedent("""\
+        steps:  # PTP, LIN, CIRC, a blend, a wait and a loop
+          - ptp: b
+            speed: 40
+          - lin: a
+            speed: 30
+          - lin: b
+          - circ: [v, c]
+          - lin: a
+            blend: 0.02
+          - wait: 0.2
+          - loop: 2
+            steps:
+              - ptp: c
+              - lin: a
+        """)
+    path.write_text(re.sub(r"steps:.*\Z", steps, text, flags=re.S))
+    taught(arm, "home")  # teach again: the steps and their comment stay
+    assert "# PTP, LIN, CIRC, a blend, a wait and a loop" in path.read_text()
+    assert len(load(path).flat()) == 10
+    run = program_cli(arm, "run", str(path))
+    assert run.popen.returncode == 0, run.output
+    out = run.output
+    assert "step 10/10" in out and "program done: 10 steps" in out, out
+    # Every motion measured but the CIRC the next LIN blends into: 5 Cartesian, 3 joint targets.
+    mm = [float(x) for x in re.findall(r"arrived, ([0-9.e+-]+) mm from its target", out)]
+    rad = [float(x) for x in re.findall(r"arrived, ([0-9.e+-]+) rad from its target", out)]
+    assert len(mm) == 5 and max(mm) <= 0.5 and len(rad) == 3 and max(rad) < 1e-3, out
+    assert "step 4/10: circ c via v" in out, out
+    assert "blended into step 5" in out, out
+    assert np.abs(arm.pose()[:3, 3] - arm.fk(points["a"].joints)[:3, 3]).max() < 5e-4
+    assert not arm.state() & StateBit.ALARM, arm.explain()
+
+
+def test_live_check_finds_each_kind_of_mistake_at_its_line_and_run_moves_nothing(
+        arm: LiveArm, tmp_path: Path) -> None:
+    a = arm.client
+    here = a.getFeedbackPosCartesian()
+    pose = np.asarray(here.carPos)
+    far = pose.copy()
+    far[0, 3] += 3.0  # 3 m further out: nobody reaches it
+    flipped = here.structFlag ^ 1 or 2
+    lower = pose.copy()
+    lower[2, 3] -= 0.05  # 5 cm below: a LIN there in another posture
+    rows = lambda m: "[" + ", ".join("[" + ", ".join(f"{v:.9g}" for v in r) + "]" for r in m) + "]"  # noqa: E731
+    path = tmp_path / "bad.yaml"
+    path.write_text(textwrap.dedent(f"""\
+        points:
+          start: {{joints: {[float(x) for x in arm.joints()[:arm.model.axis_num]]}, pose: {rows(pose)}, elbow: {float(here.elbow)}, posture: {here.structFlag}}}
+          turned: {{joints: {[float(x) for x in TURN]}}}
+        steps:
+          - ptp: start
+          - lin: {{pose: {rows(far)}}}
+          - ptp: turned
+          - lin: {{pose: {rows(lower)}, elbow: {float(here.elbow)}, posture: {flipped}}}
+        """))
+    before = arm.joints()
+    check = program_cli(arm, "check", str(path))
+    assert check.popen.returncode == 1, check.output
+    found = {int(m.group(1)): m.group(2) for m in re.finditer(rf"{re.escape(str(path))}:(\d+):\d+: (.*)", check.output)}
+    assert set(found) == {6, 7, 8}, check.output  # the three motions that cannot be planned, by line
+    assert "obstacle 1" in found[7], found[7]  # the PTP through the box
+    assert "posture" in found[8], found[8]
+    run = program_cli(arm, "run", str(path))
+    assert run.popen.returncode == 1 and "nothing moved" in run.output, run.output
+    assert np.abs(arm.joints() - before).max() < 1e-6
+    assert not arm.state() & StateBit.MOVING
+
+
+def test_program_mistakes_in_the_file_are_each_given_with_line_and_column(tmp_path: Path) -> None:
+    text = textwrap.dedent("""\
+        points:
+          p1: {joints: [0, 0, 0, 0, 0, 0, 0]}
+        steps:
+          - ptp: p2
+          - lin: p1
+            speed: 0
+          - wait: soon
+          - loop: 0
+            steps: [{ptp: p1}]
+          - jump: p1
+        """)
+    with pytest.raises(ProgramError) as raised:
+        parse(text, tmp_path / "p.yaml")
+    said = [str(m) for m in raised.value.mistakes]
+    assert said == [
+        "4:10: unknown point 'p2' (points: p1)",
+        "6:12: speed: a whole percentage 1 .. 100, got 0",
+        "7:11: wait: a number, got 'soon'",
+        "8:11: loop: a count of 1 or more, got 0",
+        "10:5: step 5: exactly one of ptp, lin, circ, wait, loop, got ['jump']",
+    ], said
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("steps:\n  - ptp: [1, 2\n")
+    run = Proc([*LAUNCHER, "program", "run", str(bad), "--connect", "tcp/127.0.0.1:1"])
+    run.popen.wait(60)
+    assert run.stop() == 1, run.output
+    assert re.search(r"bad\.yaml:3:1: not YAML", run.output) and "nothing moved" in run.output, run.output
+
+
+def test_live_teach_refuses_a_bad_name_and_a_moving_arm(arm: LiveArm) -> None:
+    reply = arm.client.ext(OP.teach, {"name": "9 lives"})
+    assert reply.id == ReturnCode.VALUE_ERR and reply.comment.startswith("name"), reply
+    target = np.array(arm.model.ready_pose) + np.array([-0.6, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    arm.client.setSpeedJoint(10)
+    moving = arm.client.movePTPJointAbs(target, wait=False)
+    reply = arm.client.ext(OP.teach, {"name": "mid"})
+    assert reply.id == ReturnCode.STATUS_ERR and "moves" in reply.comment, reply
+    moving.wait(60)
