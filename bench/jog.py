@@ -51,7 +51,10 @@ class Feedback:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            sample = self._sub.recv()
+            sample = self._sub.try_recv()  # not recv(): it would hold the subscriber while close() undeclares it
+            if sample is None:
+                time.sleep(0.002)
+                continue
             msg = codec.decode_message(w.TIMED_JOINT_POS, sample.payload.to_bytes())
             with self._lock:
                 self._t.append(msg.tm.to_seconds())
@@ -65,6 +68,7 @@ class Feedback:
 
     def close(self) -> None:
         self._stop.set()
+        self._thread.join(1.0)
         self._sub.undeclare()
 
 

@@ -279,7 +279,7 @@ class Jogger:
         self.dt = model.cmd_cycle
         self.handover = handover
         self._obstacles, self._margin = obstacles, collision_margin
-        self._tools: tuple[Checks, PathChecker, BatchFk] | None = None  # built at the first jog (0.2 s)
+        self._tools: tuple[Checks, PathChecker, BatchFk] | None = None  # built by the jog thread as it starts
         self._lock = threading.RLock()
         self._jog: _Jog | None = None
         #: The last jog that stopped by itself before a limit, why, and its motion: renewals of it while that
@@ -477,6 +477,8 @@ class Jogger:
 
     # ------------------------------------------------------------------ the thread
     def _run(self, stop: threading.Event) -> None:
+        with self._lock:  # built here, not at the first jog (0.25 s) nor in the service's start
+            self._kit()
         while not stop.wait(TICK):
             try:
                 self._tick()
