@@ -17,6 +17,7 @@
     jara-arm plot [--arm ID] (--seconds S | --from FILE.mcap) [--start S] [--end S] [--robot NAME] -o FILE.png
                   [--path FILE.png] [--size WxH] [--no-show] [Zenoh options]
     jara-arm view [--arm ID]... [--host ADDRESS] [--port P] [--rate HZ] [Zenoh options]
+    jara-arm pendant [--arm ID] [--host ADDRESS] [--port P] [--program FILE] [--no-3d] [Zenoh options]
     jara-arm program (check | run [--step]) FILE [--arm ID] [--cycles N] [Zenoh options]
     jara-arm certs init DIR [--days N] [--host H]...
     jara-arm certs issue DIR NAME --role ROLE [--host H]... [--days N] [--force]
@@ -50,6 +51,7 @@ from collections.abc import Sequence
 
 from . import completion
 from .command import Command
+from .pendant import pendant
 from .program import program_command
 from .record import plot_command, record, replay
 from .secure import certs
@@ -61,7 +63,7 @@ from .view import view
 COMMANDS: tuple[Command, ...] = (
     up.COMMAND, services.COMMAND, router.COMMAND, watch.LOGS, watch.ALARMS, demo.COMMAND, call.COMMAND,
     echo.COMMAND, state_view.COMMAND, wait.COMMAND, record.COMMAND, replay.COMMAND, plot_command.COMMAND,
-    view.COMMAND, program_command.COMMAND, certs.COMMAND, completion.COMMAND,
+    view.COMMAND, pendant.COMMAND, program_command.COMMAND, certs.COMMAND, completion.COMMAND,
 )
 
 

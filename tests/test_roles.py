@@ -46,6 +46,7 @@ def test_an_operator_may_call_every_operation_but_no_internal_queryable() -> Non
     assert {KEYS.interface(op.interface, op.name) for op in OPERATIONS} <= queries
     assert {KEYS.servo_common(name) for name in COMMON} <= queries
     assert KEYS.planner_plan not in queries and KEYS.planner_control not in queries and KEYS.alarm_copy not in queries
+    assert KEYS.planner_jog not in queries  # a jog goes through the command, which checks the state first
 
 
 @pytest.mark.parametrize("role", CLIENTS)

@@ -68,6 +68,8 @@ TICK = 0.01
 HORIZON = 0.3
 #: A joint jog stops this far inside its soft limit [rad or m]: the servo refuses a command outside it.
 LIMIT_MARGIN = 1e-6
+#: A jog that could move less than this before a limit is refused, naming it [rad or m]: it is there already.
+CREEP = 1e-4
 #: Damped least squares: below this manipulability ``sqrt(det(J Jᵀ))`` the damping grows to ``DAMPING`` at 0.
 MANIPULABILITY = 0.02
 DAMPING = 0.05
@@ -396,7 +398,7 @@ class Jogger:
         jog = _Jog(cmd, s, path, _Track(self.dt, end, limits, speed), speed, 0, epoch, q0.copy(), 1,
                    time.monotonic() + cmd.lease)
         rows, ended = self._extend(jog, int(round(HORIZON / self.dt)))
-        if ended and len(rows) <= 2:
+        if ended and np.abs(rows[-1] - q0).max() < CREEP:  # at the limit already: nothing left to jog
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: {ended}")
         head = np.vstack([q0[None, :], rows])
         jog.motion, reply = self.handover.jog_start(head, epoch, final=bool(ended))
@@ -408,9 +410,40 @@ class Jogger:
     # ------------------------------------------------------------------ extensions
     def _extend(self, jog: _Jog, count: int) -> tuple[NDArray[np.float64], str]:
         """The next ``count`` samples after ``jog.q_end`` (advancing its track and ``q_end``), checked with the
-        braking that would follow them; if that fails, the braking from ``jog.q_end`` instead, and why."""
-        checks, collisions, fk = self._kit()
+        braking that would follow them. If that fails: the longest of their first samples that still passes,
+        then the braking (the jog ends there), and why."""
         before_q, before_s = jog.q_end.copy(), jog.track.state
+        chunk, why = self._try(jog, count)
+        if not why:
+            jog.q_end = chunk[-1]
+            if jog.track.finished and jog.cmd.joint >= 0:
+                lim = "upper" if jog.cmd.sign > 0 else "lower"
+                return chunk, f"J{jog.cmd.joint + 1} reached its joint soft limit ({lim})"
+            return chunk, ""
+        # A limit ahead: bisect for the last sample from which the arm still stops in time (the samples before
+        # the one that fails are checked in order: a limit comes nearer along the jog). The braking from
+        # where the servo holds was checked with the extension before, so none passing still has one.
+        good, bad = 0, len(chunk)
+        best: tuple[NDArray[np.float64], tuple[float, float, float]] | None = None
+        while bad - good > 1:
+            mid = (good + bad) // 2
+            jog.track.restore(before_s)
+            trial, failed = self._try(jog, mid)
+            if failed:
+                bad = mid
+            else:
+                good, best = mid, (trial, jog.track.state)
+        jog.track.restore(best[1] if best is not None else before_s)
+        start = best[0][-1] if best is not None else before_q
+        brake = self._braking(jog, start)
+        parts = [p for p in (best[0] if best is not None else None, brake) if p is not None and len(p)]
+        rows = np.vstack(parts) if parts else before_q[None, :]
+        jog.q_end = rows[-1]
+        return rows, why
+
+    def _try(self, jog: _Jog, count: int) -> tuple[NDArray[np.float64], str]:
+        """``count`` samples on from ``jog.q_end`` (advancing the track), and why they fail ("" if they do not)."""
+        checks, collisions, fk = self._kit()
         rows = []
         q = jog.q_end
         for _ in range(count):
@@ -419,19 +452,7 @@ class Jogger:
             if jog.track.finished:
                 break
         chunk = np.array(rows)
-        why = self._check(jog, chunk, checks, collisions, fk)
-        if not why and jog.track.finished and jog.cmd.joint >= 0:
-            lim = "upper" if jog.cmd.sign > 0 else "lower"
-            jog.q_end = chunk[-1]
-            return chunk, f"J{jog.cmd.joint + 1} reached its joint soft limit ({lim})"
-        if not why:
-            jog.q_end = chunk[-1]
-            return chunk, ""
-        # The braking from the end of what the servo holds was checked with the extension before.
-        jog.track.restore(before_s)
-        brake = self._braking(jog, before_q)
-        jog.q_end = brake[-1] if len(brake) else before_q
-        return (brake if len(brake) else before_q[None, :]), why
+        return chunk, self._check(jog, chunk, checks, collisions, fk)
 
     def _cap(self, jog: _Jog, q: Joints) -> float:
         """A Cartesian jog's speed at ``q``: the one asked for, or less where a joint would be too fast."""
@@ -463,13 +484,12 @@ class Jogger:
         if bad.size:
             i = int(bad[0][1])
             return f"J{i + 1} would pass its joint soft limit [{lo[i]:.6g}, {hi[i]:.6g}]"
-        if jog.cmd.joint < 0:
-            frames = Frames.of(jog.settings)
-            positions = frames.to_robot(fk.run(ahead[:, :n], frames.tool)[0])
-            try:
-                checks.box(jog.settings, positions, jog.cmd.op)
-            except PlanRefused as exc:
-                return exc.comment.split(": ", 1)[-1]
+        frames = Frames.of(jog.settings)
+        positions = frames.to_robot(fk.run(ahead[:, :n], frames.tool)[0])
+        try:
+            checks.box(jog.settings, positions, jog.cmd.op)
+        except PlanRefused as exc:
+            return exc.comment.split(": ", 1)[-1]
         contact = collisions.check(np.vstack([jog.q_end[None, :], ahead]))
         if contact is not None:
             return f"it would come too close to an obstacle: {contact.describe()}"

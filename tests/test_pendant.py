@@ -1,0 +1,161 @@
+"""``jara-arm pendant`` on the live system: its actions over HTTP, and hold-to-jog in a real browser.
+
+The browser part drives headless Chromium over its DevTools protocol (``test_view.py``'s ``Browser``):
+press and hold a jog button, the arm moves; release it, the arm stops; hold it and close the tab, the arm
+stops within the lease.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from jara_arm.schema.codes import ReturnCode, StateBit
+from jara_arm.schema.keys import Service
+
+from .harness import LiveArm, launched, listening
+from .support import LAUNCHER, Proc, client_session, free_port, wait_until
+from .test_view import Browser
+
+#: The pendant's lease per jog call [s] (``pendant.LEASE_MS``) and the braking after it (test_jog.py's bound).
+LEASE = 0.3
+BRAKING = 0.5
+
+
+@pytest.fixture(scope="module")
+def pendant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[LiveArm, str, Path]]:
+    """The iiwa and ``jara-arm pendant`` of it: (arm, the page's URL, a work folder)."""
+    folder = tmp_path_factory.mktemp("pendant")
+    with launched("--robot", "iiwa", "--program-dir", str(folder)) as (proc, port), client_session(port) as session:
+        arm = LiveArm(session, "iiwa", proc=proc)
+        arm.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
+        page_port = free_port()
+        served = Proc([*LAUNCHER, "pendant", "--port", str(page_port), "--program",
+                       str(folder / "arm0.program.yaml"), "--connect", listening(proc)])
+        try:
+            served.wait_for_line("jara-arm pendant: http://", timeout=60)
+            yield arm, f"http://127.0.0.1:{page_port}/", folder
+        finally:
+            assert served.stop() == 0, served.output
+            assert "Traceback" not in served.output, served.output
+
+
+@pytest.fixture
+def arm(pendant: tuple[LiveArm, str, Path]) -> LiveArm:
+    pendant[0].reset()
+    return pendant[0]
+
+
+def post(url: str, action: str, body: dict[str, Any] | None = None) -> dict[str, Any]:
+    request = urllib.request.Request(url + "api/" + action, data=json.dumps(body or {}).encode(),
+                                     headers={"Content-Type": "application/json"}, method="POST")
+    with urllib.request.urlopen(request, timeout=10) as r:
+        reply: dict[str, Any] = json.load(r)
+        return reply
+
+
+def get_state(url: str) -> dict[str, Any]:
+    with urllib.request.urlopen(url + "api/state", timeout=10) as r:
+        state: dict[str, Any] = json.load(r)
+        return state
+
+
+def test_live_the_pendants_actions_call_the_arm(arm: LiveArm, pendant: tuple[LiveArm, str, Path]) -> None:
+    url = pendant[1]
+    q0 = arm.joints()
+    for _ in range(8):  # held for 0.8 s
+        assert post(url, "jog", {"axis": 2, "speedRatio": -20})["id"] == ReturnCode.OK
+        time.sleep(0.1)
+    assert post(url, "jogStop")["id"] == ReturnCode.OK
+    arm.wait_rest()
+    assert arm.joints()[1] < q0[1] - 0.05
+    state = get_state(url)
+    assert state["axes"] == 7 and state["alarms"] == [] and state["state"] & StateBit.SERVO_ON, state
+    taught = post(url, "teach", {"name": "here"})
+    assert taught["id"] == ReturnCode.OK and "here" in taught["comment"], taught
+    assert post(url, "override", {"ratio": 40})["id"] == ReturnCode.OK
+    assert get_state(url)["override"] == 40.0
+    assert post(url, "override", {"ratio": 100})["id"] == ReturnCode.OK
+    bad = post(url, "fly")
+    assert bad["id"] == ReturnCode.VALUE_ERR and "jog" in bad["comment"], bad
+    # The big stop is the e-stop: a FAULT, the servo off; cleared as any alarm.
+    assert post(url, "estop")["id"] == ReturnCode.OK
+    wait_until(lambda: get_state(url)["alarms"], 5.0, what="the e-stop's alarm on the page")
+    assert get_state(url)["alarms"][0]["code"] == "0x01"
+    assert post(url, "clearAlarms")["id"] == ReturnCode.OK
+    assert post(url, "servoON")["id"] == ReturnCode.OK
+
+
+def button_centre(b: Browser, label: str, nth: int) -> tuple[float, float]:
+    """The centre of the ``nth`` jog button whose text is ``label`` (J1 - is 0, J1 + is 0 of "+")."""
+    expression = (f"(() => {{ const b = [...document.querySelectorAll('button.jog')].filter("
+                  f"x => x.textContent === {json.dumps(label)})[{nth}]; if (!b) return null; "
+                  "const r = b.getBoundingClientRect(); return [r.x + r.width / 2, r.y + r.height / 2]; })()")
+    found: list[Any] = []
+
+    def there() -> bool:
+        value = b._call("Runtime.evaluate", expression=expression, returnByValue=True)["result"].get("value")
+        found[:] = value or []
+        return bool(value)
+
+    wait_until(there, 30.0, 0.2, f"the page's jog button {label!r} #{nth}")
+    return float(found[0]), float(found[1])
+
+
+def mouse(b: Browser, kind: str, x: float, y: float) -> None:
+    b._call("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", buttons=1 if kind == "mousePressed" else 0,
+            clickCount=1)
+
+
+def moving(arm: LiveArm, joint: int, within: float) -> bool:
+    """Whether ``joint`` moves by more than 1e-4 rad over ``within`` [s]."""
+    a = arm.joints()[joint]
+    time.sleep(within)
+    return abs(arm.joints()[joint] - a) > 1e-4
+
+
+def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
+        arm: LiveArm, pendant: tuple[LiveArm, str, Path], tmp_path: Path) -> None:
+    from .test_view import chromium
+
+    chromium()  # skips, saying why, where there is no Chromium
+    url = pendant[1]
+    b = Browser(tmp_path)
+    try:
+        b._call("Page.navigate", url=url)
+        x, y = button_centre(b, "+", 0)  # J1 +
+        q0 = arm.joints()[0]
+        mouse(b, "mouseMoved", x, y)
+        mouse(b, "mousePressed", x, y)
+        wait_until(lambda: arm.joints()[0] > q0 + 0.02, 10.0, what="J1 moving while the button is held")
+        time.sleep(0.6)  # held: it goes on (the page renews the lease)
+        assert moving(arm, 0, 0.1), f"J1 stopped while the button was held; the page: {b.text()[-600:]}\n{arm.explain()}"
+        mouse(b, "mouseReleased", x, y)
+        released = time.monotonic()
+        arm.wait_rest(5.0)
+        assert time.monotonic() - released < LEASE + BRAKING + 0.2
+        assert not moving(arm, 0, 0.2)
+        # Held, then the tab closed: the calls stop, the lease lapses.
+        q1 = arm.joints()[0]
+        mouse(b, "mousePressed", x, y)
+        wait_until(lambda: arm.joints()[0] > q1 + 0.02, 10.0, what="J1 moving again")
+        closed = time.monotonic()
+        try:
+            b._call("Page.close")
+        except Exception:  # the page's socket may go before its answer does: closed either way
+            pass
+        wait_until(lambda: not arm.state() & StateBit.MOVING, 5.0, 0.01, "the arm at rest after the tab closed")
+        stopped = time.monotonic() - closed
+        assert stopped < LEASE + BRAKING + 0.3, f"at rest {stopped:.3f} s after the tab closed"
+        print(f"pendant in Chromium: at rest {stopped * 1e3:.0f} ms after the tab closed while holding J1 +")
+        assert not arm.state() & StateBit.ALARM, arm.explain()
+    finally:
+        b.close()
+    assert np.isfinite(arm.joints()).all()
