@@ -230,6 +230,53 @@ def test_live_bad_jog_values_are_refused_naming_the_field_and_nothing_moves(arm:
     assert np.abs(arm.joints() - before).max() < 1e-6
 
 
+def test_live_a_jog_is_refused_while_paused(arm: Arm) -> None:
+    target = np.array(arm.model.ready_pose) + np.array([0.6, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 10}))
+    arm.ok(arm.middle(OP.movePTPJointAbs, {"jointPoints": target.tolist()}))
+    arm.ok(arm.middle(OP.pause))
+    reply = arm.client.ext(OP.jogJoint, {"axis": 1, "speedRatio": 20.0, "leaseMs": 200})
+    assert reply.id == ReturnCode.STATUS_ERR and "paused" in reply.comment, reply
+    arm.ok(arm.middle(OP.stop))
+    arm.idle()
+
+
+def test_live_near_a_singularity_a_cartesian_jog_slows_down_and_backs_out(arm: Arm) -> None:
+    """The iiwa almost stretched upright: jogging further up (where it cannot go) slows down within the joint
+    speeds, with no alarm; jogging down backs out."""
+    almost = [0.0, 0.08, 0.0, -0.16, 0.0, 0.08, 0.0]
+    arm.ok(arm.middle(OP.movePTPJointAbs, {"jointPoints": almost}))
+    arm.idle()
+    z0 = arm.fk()[2, 3]
+    vmax = np.array(arm.client.middle(OP.getMaxSpeedJoint)["speed"])
+    arm.record()
+    _hold_or_stopped(arm, {"frame": "base", "axis": "z", "speedRatio": 40.0, "leaseMs": 600}, 1.5)
+    arm.wait_rest()
+    t, q = arm.recorded_timed()
+    w = 20
+    v = np.abs((q[w:, :7] - q[:-w, :7]) / (t[w:] - t[:-w])[:, None])
+    assert (v <= vmax * 1.0 + 1e-3).all(), f"a joint ran at {(v / vmax).max() * 100:.0f} % of its max speed"
+    assert not arm.state() & StateBit.ALARM, arm.explain()
+    top = arm.fk()[2, 3]
+    assert top - z0 < 0.4 * 0.25 * 1.5, "it did not slow down"
+    arm.record()
+    hold(arm, OP.jogCartesian, {"frame": "base", "axis": "z", "speedRatio": -40.0, "leaseMs": 600}, 0.8)
+    arm.wait_rest()
+    assert arm.fk()[2, 3] < top - 0.02, f"it did not back out: z {arm.fk()[2, 3]:.4f} m from {top:.4f} m"
+    assert not arm.state() & StateBit.ALARM, arm.explain()
+
+
+def _hold_or_stopped(arm: Arm, args: dict[str, Any], seconds: float) -> None:
+    """Hold a Cartesian jog for ``seconds``, or until a limit stops it (refused, naming it)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        reply = arm.client.ext(OP.jogCartesian, args)
+        if reply.id == ReturnCode.VALUE_ERR:
+            return
+        assert reply.id == ReturnCode.OK, f"{reply}\n{arm.explain()}"
+        time.sleep(0.05)
+
+
 def test_live_a_jog_is_refused_with_the_servo_off(arm: Arm) -> None:
     arm.ok(arm.common(OP.servoOFF))
     reply = arm.client.ext(OP.jogJoint, {"axis": 1, "speedRatio": 20.0, "leaseMs": 200})

@@ -68,8 +68,10 @@ TICK = 0.01
 HORIZON = 0.3
 #: A joint jog stops this far inside its soft limit [rad or m]: the servo refuses a command outside it.
 LIMIT_MARGIN = 1e-6
-#: A jog that could move less than this before a limit is refused, naming it [rad or m]: it is there already.
-CREEP = 1e-4
+#: A jog that could move no joint more than this before a limit is refused, naming it [rad or m]: it is there.
+#: From rest a jog may creep closer than it stopped from speed (its stop is shorter), and again, each time by
+#: less: below a milliradian (about a millimetre at the tool) it is refused instead.
+CREEP = 1e-3
 #: Damped least squares: below this manipulability ``sqrt(det(J Jᵀ))`` the damping grows to ``DAMPING`` at 0.
 MANIPULABILITY = 0.02
 DAMPING = 0.05
@@ -199,16 +201,25 @@ class _JointPath:
         g[self.joint] = self.sign
         return g
 
+    def state(self) -> object:
+        return None  # each sample is a function of s alone
+
+    def restore(self, state: object) -> None:
+        pass
+
 
 class _CartesianPath:
     """A Cartesian jog: the control point's pose at ``s`` is the start pose moved ``sign * s`` along or about
     one axis; each sample's joints come from the sample before by one damped least squares step."""
 
     def __init__(self, checks: Checks, fk_frames: Frames, q0: Joints, cmd: JogCommand, vmax: Joints,
-                 dt: float) -> None:
+                 dt: float, accel_time: float) -> None:
+        """``vmax`` [rad/s or m/s]: the joints' speeds; ``accel_time`` [s]: rest to ``vmax`` (the settings')."""
         kin = checks.kin
         self.kin, self.n, self.tool, self.dt = kin, checks.n, fk_frames.tool, dt
         self.vmax = vmax[:self.n]
+        self.amax = self.vmax / accel_time  # [rad/s² or m/s²]
+        self._dq = np.zeros(self.n)  # the step before [rad or m]
         x0 = kin.control_point(q0[:self.n], self.tool)  # the arm frame, where kinematics works
         axis = np.zeros(3)
         axis[cmd.axis % 3] = cmd.sign
@@ -237,13 +248,38 @@ class _CartesianPath:
         now = self.kin.control_point(q[:self.n], self.tool)
         err = np.concatenate([target.translation - now.translation, pin.log3(target.rotation @ now.rotation.T)])
         dq = self._solve(q, err)
-        # A step never asks a joint for more than its speed: near a singularity the arm lags, never jumps.
+        # A step never asks a joint for more than its speed, nor changes it faster than its acceleration: near a
+        # singularity the joint rates a straight line needs change fast (an effort of twice J2's rating was
+        # measured before this); the arm then lags behind the line and the next steps close on it.
+        step = self.amax * self.dt * self.dt
+        dq = np.clip(dq, self._dq - step, self._dq + step)
         over = np.max(np.abs(dq) / (self.vmax * self.dt))
         if over > 1.0:
             dq /= over
+        self._dq = dq
         out = q.copy()
         out[:self.n] += dq
         return out
+
+    def stop(self, q: Joints) -> NDArray[np.float64]:
+        """The samples of a stop from ``q`` moving by the step before: each joint slows down on its own at its
+        acceleration (the arm leaves the line a little; the stop is what the checks assumed, joint by joint)."""
+        rows = []
+        dq = self._dq.copy()
+        step = self.amax * self.dt * self.dt
+        while np.any(dq != 0.0):
+            dq = np.sign(dq) * np.maximum(np.abs(dq) - step, 0.0)
+            q = q.copy()
+            q[:self.n] += dq
+            rows.append(q)
+        self._dq = dq
+        return np.array(rows) if rows else q[None, :].copy()
+
+    def state(self) -> object:
+        return self._dq.copy()
+
+    def restore(self, state: object) -> None:
+        self._dq = np.array(state, dtype=float)
 
     def rate(self, q: Joints) -> Joints:
         """d q / d s at ``q``: the joint rates of a unit speed along the jog."""
@@ -393,7 +429,7 @@ class Jogger:
                 raise PlanRefused(ReturnCode.NG, f"{cmd.op} refused: {why}")
             top = s.maxSpeedCartesian.rotation if cmd.axis >= 3 else s.maxSpeedCartesian.translation
             limits = ProfileLimits.from_accel_time(top, s.accelTimeCartesian)
-            path = _CartesianPath(checks, Frames.of(s), q0, cmd, checks.vmax(s), self.dt)
+            path = _CartesianPath(checks, Frames.of(s), q0, cmd, checks.vmax(s), self.dt, s.accelTimeJoint)
             end = CARTESIAN_REACH
         jog = _Jog(cmd, s, path, _Track(self.dt, end, limits, speed), speed, 0, epoch, q0.copy(), 1,
                    time.monotonic() + cmd.lease)
@@ -412,7 +448,7 @@ class Jogger:
         """The next ``count`` samples after ``jog.q_end`` (advancing its track and ``q_end``), checked with the
         braking that would follow them. If that fails: the longest of their first samples that still passes,
         then the braking (the jog ends there), and why."""
-        before_q, before_s = jog.q_end.copy(), jog.track.state
+        before_q, before_s, before_p = jog.q_end.copy(), jog.track.state, jog.path.state()
         chunk, why = self._try(jog, count)
         if not why:
             jog.q_end = chunk[-1]
@@ -424,16 +460,18 @@ class Jogger:
         # the one that fails are checked in order: a limit comes nearer along the jog). The braking from
         # where the servo holds was checked with the extension before, so none passing still has one.
         good, bad = 0, len(chunk)
-        best: tuple[NDArray[np.float64], tuple[float, float, float]] | None = None
+        best: tuple[NDArray[np.float64], tuple[float, float, float], object] | None = None
         while bad - good > 1:
             mid = (good + bad) // 2
             jog.track.restore(before_s)
+            jog.path.restore(before_p)
             trial, failed = self._try(jog, mid)
             if failed:
                 bad = mid
             else:
-                good, best = mid, (trial, jog.track.state)
+                good, best = mid, (trial, jog.track.state, jog.path.state())
         jog.track.restore(best[1] if best is not None else before_s)
+        jog.path.restore(best[2] if best is not None else before_p)
         start = best[0][-1] if best is not None else before_q
         brake = self._braking(jog, start)
         parts = [p for p in (best[0] if best is not None else None, brake) if p is not None and len(p)]
@@ -464,6 +502,8 @@ class Jogger:
         return min(jog.speed, allowed)
 
     def _braking(self, jog: _Jog, q: Joints) -> NDArray[np.float64]:
+        if isinstance(jog.path, _CartesianPath):
+            return jog.path.stop(q)
         rows = []
         for s in jog.track.braking():
             q = jog.path.at(q, float(s))
@@ -480,6 +520,13 @@ class Jogger:
         ahead = np.vstack([chunk, last + jog.path.rate(last) * ds]) if ds > 0.0 else chunk
         n = self.model.axis_num
         lo, hi = checks.soft_limits(jog.settings)
+        if isinstance(jog.path, _CartesianPath) and len(chunk) >= 2:
+            # Each joint must also be able to stop on its own at its acceleration: near a singularity the joints
+            # lag the line, and a wrist axis spun fast stops further than the line's stop says.
+            # Every sample's (the servo checks every command so).
+            v = np.diff(chunk[:, :n], axis=0) / self.dt
+            reach = chunk[1:, :n] + np.sign(v) * v * v / (2.0 * jog.path.amax)
+            ahead = np.vstack([ahead, np.hstack([reach, chunk[1:, n:]])])
         bad = np.argwhere((ahead[:, :n] < lo - 1e-9) | (ahead[:, :n] > hi + 1e-9))
         if bad.size:
             i = int(bad[0][1])
