@@ -348,8 +348,24 @@ class Browser:
                 assert "error" not in message, message
                 return dict(message.get("result", {}))
 
-    def open(self, url: str) -> None:
+    def open(self, url: str, timeout: float = 60.0) -> None:
+        """Navigate to ``url`` and wait until the page has loaded there: until then the page may be between
+        renderers ("Not attached to an active page", seen once beside two busy loops) and cannot be shot."""
         self._call("Page.navigate", url=url)
+        deadline = time.monotonic() + timeout
+        while True:
+            self._id += 1
+            self._ws.send(json.dumps({"id": self._id, "method": "Runtime.evaluate", "params": {
+                "expression": "[document.readyState, location.href]", "returnByValue": True}}))
+            while True:
+                message = json.loads(self._ws.recv(timeout=60))
+                if message.get("id") == self._id:
+                    break
+            value = message.get("result", {}).get("result", {}).get("value")
+            if value and value[0] == "complete" and str(value[1]).startswith(url.rstrip("/")):
+                return
+            assert time.monotonic() < deadline, f"the page did not load {url} within {timeout} s: {message}"
+            time.sleep(0.1)
 
     def text(self) -> str:
         """The page's visible text (hidden elements left out), e.g. the panel's rendered markdown."""
