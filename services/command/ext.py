@@ -28,11 +28,11 @@ from jara_arm.schema.types import LimitValue
 from jara_arm.services.runtime.rpc import ok
 
 from .feedback import JointFeedback
+from .middle import CommandMiddle, refuse_unless_ready
 
 #: ``teach`` waits this long for a moving arm to come to rest before it refuses [s]: the end of a motion the
 #: caller saw complete reaches this service's state a few ms later, and the arm settles after its last sample.
 TEACH_SETTLE = 1.0
-from .middle import CommandMiddle
 
 
 class CommandExt:
@@ -97,11 +97,7 @@ class CommandExt:
         core = self._middle.core
         view = core.state.view()
         # State first, values last (DECISIONS.md), as for a motion; the values are the planner's to check.
-        if not view.servo_on:
-            raise Refusal(ReturnCode.NOT_SV_ON_ERR, f"{name} refused: the servo is off: call {OP.servoON} first")
-        if view.alarm:
-            raise Refusal(ReturnCode.STATUS_ERR, f"{name} refused: an alarm is active ({OP.getActiveAlarm}, "
-                          f"then {OP.clearAlarms} and {OP.servoON})")
+        refuse_unless_ready(view, name)
         if view.paused:
             raise Refusal(ReturnCode.STATUS_ERR, f"{name} refused: paused ({OP.resume} or {OP.stop} first)")
         return self._forward(name, args)

@@ -27,6 +27,7 @@ from .cartesian import CartesianFeedback
 from .core import Core
 from .feedback import JointFeedback
 from .settings import Settings
+from .state import StateView
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +40,17 @@ CARTESIAN_RATIO_OPS = frozenset({
 })
 #: Full opening of ``moveGripper`` [%].
 MAX_GRIPPER_RATIO = 100
+
+
+def refuse_unless_ready(view: StateView, name: str) -> None:
+    """Raise the refusal of ``name`` (a motion or a jog) if the arm cannot move now: servo off or an alarm."""
+    if not view.servo_on:
+        why = ("the servo is off: call servoON first" if view.servo_heard else
+               "no Servo/status from the servo service: is it running?")
+        raise Refusal(ReturnCode.NOT_SV_ON_ERR, f"{name} refused: {why}")
+    if view.alarm:
+        raise Refusal(ReturnCode.STATUS_ERR, f"{name} refused: an alarm is active "
+                      f"({OP.getActiveAlarm}, then {OP.clearAlarms} and {OP.servoON})")
 
 
 class CommandMiddle:
@@ -116,13 +128,7 @@ class CommandMiddle:
         with core.serial:
             view = core.state.view(listen=STATUS_LISTEN)
             # The order of the refusals is DECISIONS.md's: state first, values last.
-            if not view.servo_on:
-                why = ("the servo is off: call servoON first" if view.servo_heard else
-                       "no Servo/status from the servo service: is it running?")
-                raise Refusal(ReturnCode.NOT_SV_ON_ERR, f"{name} refused: {why}")
-            if view.alarm:
-                raise Refusal(ReturnCode.STATUS_ERR, f"{name} refused: an alarm is active "
-                              f"({OP.getActiveAlarm}, then {OP.clearAlarms} and {OP.servoON})")
+            refuse_unless_ready(view, name)
             # The speed ratio starts at 0 % (specification): until it is set, nothing may move.
             if name in CARTESIAN_RATIO_OPS:
                 ratio, setter = self.settings.spd_ratio_cartesian, OP.setSpeedCartesian

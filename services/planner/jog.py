@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 from numpy.typing import NDArray
-from ruckig import ControlInterface, InputParameter, OutputParameter, Result, Ruckig, Trajectory
+from ruckig import InputParameter, OutputParameter, Result, Ruckig
 
 from jara_arm.kinematics import Kinematics
 from jara_arm.robots import Obstacle, RobotModel
@@ -53,7 +53,7 @@ from .checks import Checks
 from .collision import DEFAULT_MARGIN, PathChecker
 from .frames import Frames
 from .handover import Handover
-from .profile import ProfileLimits
+from .profile import ProfileLimits, stop_profile
 from .request import PlanRefused
 from .sampling import BatchFk
 from .trajectory import Joints
@@ -135,10 +135,8 @@ class _Track:
     """The distance along the jog ``s`` [rad or m], its speed and acceleration, one sample at a time (Ruckig,
     position interface towards ``end``: a joint jog stops on its soft limit exactly)."""
 
-    def __init__(self, dt: float, end: float, limits: ProfileLimits, speed: float) -> None:
-        self.dt = dt
-        self.limits = limits
-        self.speed = speed  # [rad/s or m/s] asked for now
+    def __init__(self, dt: float, end: float, limits: ProfileLimits) -> None:
+        self.dt, self.end, self.limits = dt, end, limits
         self._otg = Ruckig(1, dt)
         self._inp = InputParameter(1)
         self._out = OutputParameter(1)
@@ -170,18 +168,8 @@ class _Track:
 
     def braking(self) -> NDArray[np.float64]:
         """The samples of ``s`` of the shortest jerk-limited stop from here (after the current one)."""
-        inp = InputParameter(1)
-        inp.control_interface = ControlInterface.Velocity
-        inp.current_position, inp.current_velocity, inp.current_acceleration = (
-            self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration)
-        inp.target_velocity, inp.target_acceleration = [0.0], [0.0]
-        inp.max_velocity = [max(abs(self._inp.current_velocity[0]), 1e-9)]
-        inp.max_acceleration, inp.max_jerk = [self.limits.acceleration], [self.limits.jerk]
-        traj = Trajectory(1)
-        if Ruckig(1).calculate(inp, traj) not in (Result.Working, Result.Finished):
-            return np.array([inp.current_position[0]])
-        times = np.arange(1, max(1, math.ceil(traj.duration / self.dt)) + 1) * self.dt
-        return np.array([traj.at_time(min(t, traj.duration))[0][0] for t in times])
+        s, sd, sdd = self.state
+        return stop_profile(self.end, s, max(sd, 0.0), sdd, self.limits).sample(self.dt).s[1:]
 
 
 class _JointPath:
@@ -301,7 +289,6 @@ class _Jog:
     motion: int  # the servo's motion id
     epoch: int
     q_end: Joints  # the last buffered sample
-    samples: int  # buffered so far (the head's first row counted)
     lease_until: float  # [monotonic s]
     left: float = 0.0  # [samples] the servo had left of it when it last said (``MotionProgress.runningLeft``)
     left_at: float = 0.0  # [monotonic s] when it said it
@@ -366,7 +353,7 @@ class Jogger:
                                       f"{jog.cmd.describe()} lapsed {(now - jog.lease_until) * 1e3:.0f} ms ago: "
                                       "it brakes; call again once it holds")
                 jog.cmd, jog.lease_until = cmd, now + cmd.lease
-                jog.speed = self._speed(cmd, settings_of=jog.settings)
+                jog.speed = cmd.ratio * self._top(cmd, jog.settings)
                 return ReturnCode.OK, f"OK: jogging {cmd.describe()} at {cmd.ratio * 100:.0f} %"
             ended = self._ended
             if ended is not None and ended[0].same_jog(cmd) and ended[2] in self.handover.progress().queued:
@@ -397,16 +384,16 @@ class Jogger:
         log.info("jog %s: %s: %s", jog.cmd.describe(), why, comment)
         return f"OK: {why}: braking" if code == ReturnCode.OK else f"{why}: {comment}"
 
-    def _speed(self, cmd: JogCommand, settings_of: MotionSettings) -> float:
+    def _top(self, cmd: JogCommand, s: MotionSettings) -> float:
+        """The max speed along a jog of ``cmd``'s kind [rad/s or m/s]: the joint's, or the Cartesian one."""
         if cmd.joint >= 0:
             checks, _, _ = self._kit()
-            return cmd.ratio * float(checks.vmax(settings_of)[cmd.joint])
-        top = settings_of.maxSpeedCartesian
-        return cmd.ratio * (top.rotation if cmd.axis >= 3 else top.translation)
+            return float(checks.vmax(s)[cmd.joint])
+        return s.maxSpeedCartesian.rotation if cmd.axis >= 3 else s.maxSpeedCartesian.translation
 
     def _begin(self, cmd: JogCommand, s: MotionSettings, q0: Joints, epoch: int) -> _Jog:
         checks, _, _ = self._kit()
-        speed = self._speed(cmd, s)
+        top = self._top(cmd, s)
         if cmd.joint >= 0:
             lo, hi = checks.soft_limits(s)
             i = cmd.joint
@@ -415,7 +402,6 @@ class Jogger:
                 bound = f"upper {hi[i]:.6g}" if cmd.sign > 0 else f"lower {lo[i]:.6g}"
                 raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: J{i + 1} is at its joint soft limit "
                                   f"({bound}): jog the other way")
-            top = float(checks.vmax(s)[i])
             limits = ProfileLimits.from_accel_time(top, s.accelTimeJoint)
             path: _JointPath | _CartesianPath = _JointPath(q0, i, cmd.sign)
             end = room
@@ -427,18 +413,16 @@ class Jogger:
                     f"a {self.model.axis_num}-axis {self.model.family.value} arm cannot hold all six components "
                     "of the pose (a Cartesian jog keeps the five it does not move)")
                 raise PlanRefused(ReturnCode.NG, f"{cmd.op} refused: {why}")
-            top = s.maxSpeedCartesian.rotation if cmd.axis >= 3 else s.maxSpeedCartesian.translation
             limits = ProfileLimits.from_accel_time(top, s.accelTimeCartesian)
             path = _CartesianPath(checks, Frames.of(s), q0, cmd, checks.vmax(s), self.dt, s.accelTimeJoint)
             end = CARTESIAN_REACH
-        jog = _Jog(cmd, s, path, _Track(self.dt, end, limits, speed), speed, 0, epoch, q0.copy(), 1,
+        jog = _Jog(cmd, s, path, _Track(self.dt, end, limits), cmd.ratio * top, 0, epoch, q0.copy(),
                    time.monotonic() + cmd.lease)
         rows, ended = self._extend(jog, int(round(HORIZON / self.dt)))
         if ended and np.abs(rows[-1] - q0).max() < CREEP:  # at the limit already: nothing left to jog
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: {ended}")
         head = np.vstack([q0[None, :], rows])
         jog.motion, reply = self.handover.jog_start(head, epoch, final=bool(ended))
-        jog.samples = len(head)
         jog.left, jog.left_at = len(head) - 1.0, time.monotonic()
         jog.ended = ended
         return jog
@@ -579,7 +563,6 @@ class Jogger:
             log.info("jog %s ended: the servo did not take its extension: %s", jog.cmd.describe(), reply.comment)
             self._jog = None
             return
-        jog.samples += len(rows)
         p = reply.progress
         if p.running == jog.motion:
             jog.left, jog.left_at = p.runningLeft, time.monotonic()

@@ -262,15 +262,14 @@ class PlannerService:
             return ControlReply(int(ReturnCode.VALUE_ERR), str(exc), self.handover.progress())
         except PlanRefused as exc:
             return ControlReply(int(exc.code), exc.comment, self.handover.progress())
+        starting = not self.jogger.active  # a renewal never waits for a plan, nor takes the gate
         try:
-            if self.jogger.active:  # a renewal: never waits for a plan
-                code, comment = self.jogger.jog(cmd, wire.settings, lambda: self._jog_start(wire))
-            elif not self._gate.acquire(blocking=False):
+            if starting and not self._gate.acquire(blocking=False):
                 raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: a motion is being planned")
-            else:
-                try:
-                    code, comment = self.jogger.jog(cmd, wire.settings, lambda: self._jog_start(wire))
-                finally:
+            try:
+                code, comment = self.jogger.jog(cmd, wire.settings, lambda: self._jog_start(wire))
+            finally:
+                if starting:
                     self._gate.release()
         except PlanRefused as exc:
             log.info("%s refused (%s): %s", cmd.op, exc.code.name, exc.comment)
