@@ -87,7 +87,8 @@ class Trajectory:
     motion: int = wire(w.ULONG)  # the id the planner gave the motion
     epoch: int = wire(w.ULONG)  # the servo's epoch it was planned in (MotionProgress.epoch)
     after: int = wire(w.ULONG)  # the motion it follows; 0: from rest where the servo holds the arm
-    #: the sample of ``after`` at which it takes over (a blend's cut, a head's last sample); -1: at the end
+    #: the sample of ``after`` at which it takes over (a blend's cut, a head's last sample); negative: counted
+    #: from the end, -1 being the last (a jog's stop, replaced by more of the jog)
     splice: int = wire(w.LONG)
     final: bool = wire(w.BOOLEAN)  # False: a head whose rest follows (an early start)
     dof: int = wire(w.ULONG)  # values per sample

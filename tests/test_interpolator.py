@@ -157,6 +157,35 @@ def test_a_head_never_runs_past_its_last_sample(seed):
     assert _on_polyline(q, head) < 1e-12
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_a_jogs_stop_is_replaced_from_the_end_and_a_head_that_ends_at_rest_runs_as_planned(seed):
+    """A jog's head ends in its stop and its last sample again (``rests``): run at scale 1 to that end (no cap)
+    and held there without a 'ran out'; a splice counted from the end (-k) replaces its stop by more path."""
+    rng = np.random.default_rng(seed)
+    goal = rng.uniform(-0.5, 0.5, 2)
+    rows = _rest_to_rest(np.zeros(2), goal, rng.uniform(0.2, 0.6))
+    half = len(rows) // 2
+    stop = _rest_to_rest(rows[half], rows[half] + 1e-3 * np.sign(goal), 0.05)  # a short stop after the half
+    head = np.vstack([rows[:half + 1], stop[1:], stop[-1:]])
+    it = _buffered(head, final=False)
+    assert it.queue[0].rests
+    _run(it, limit=half - 20)
+    assert it.scale == 1.0, "capped though it ends at rest"
+    more = np.vstack([rows[half:], rows[-1:]])
+    back = len(head) - 1 - half  # the stop's first sample, counted from the end
+    refusal, why = it.submit(prepare(1, more, True, DT, AMAX), it.epoch, 1, -1 - back, head[-1], False)
+    assert refusal is None, why
+    q = _run(it)
+    assert np.allclose(q[-1], goal) and _on_polyline(q, rows) < 1e-12 and it.ran_out == 0
+    # Not replaced: it stops on its samples and holds at their end, no ran-out.
+    it = _buffered(head, final=False)
+    q = _run(it, limit=len(head) + 50)
+    assert np.allclose(q[-1], stop[-1]) and it.ran_out == 0 and it.tau == len(head) - 1
+    assert it.submit(prepare(1, head[-1:], True, DT, AMAX), it.epoch, 1, -1, head[-1], False)[0] is None
+    _run(it)
+    assert not it.active and it.last_done == 1
+
+
 def test_head_cap_is_zero_at_the_end_and_grows_with_what_is_left():
     assert head_cap(0.0, RATE_MAX) == 0.0
     caps = [head_cap(r, 5.0) for r in (0.001, 0.01, 0.1, 1.0)]

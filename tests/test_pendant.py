@@ -26,7 +26,7 @@ from .support import LAUNCHER, Proc, client_session, free_port, wait_until
 from .test_view import Browser
 
 #: The pendant's lease per jog call [s] (``pendant.LEASE_MS``) and the braking after it (test_jog.py's bound).
-LEASE = 0.3
+LEASE = 0.5
 BRAKING = 0.5
 
 

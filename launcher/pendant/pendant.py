@@ -46,9 +46,10 @@ from ..view.view import DEFAULT_HOST, View, ViewError, ViewSettings, check_port
 
 log = logging.getLogger(__name__)
 
-#: The lease of each jog call the page's hold makes [ms], and how often the page renews it [ms]: two
-#: renewals may be lost or late before the arm brakes.
-LEASE_MS = 300
+#: The lease of each jog call the page's hold makes [ms], and how often the page renews it [ms]: four
+#: renewals may be lost or late before the arm stops. A jog goes no faster than it stops within half its lease
+#: (``services/planner/jog.py``): 500 ms lets it reach full speed at acceleration times up to 0.24 s.
+LEASE_MS = 500
 RENEW_MS = 100
 DEFAULT_PORT = 8090
 

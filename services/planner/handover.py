@@ -155,6 +155,19 @@ class Handover:
             assert m is not None
             return np.array(m.tail, dtype=float), m.epoch
 
+    def heard_since(self, tm: float, timeout: float) -> bool:
+        """Wait until the servo's newest word on its queue (``Servo/motion``, every change and every 0.1 s) was
+        made at ``tm`` [s, the servo's clock] or later; False if none was within ``timeout`` [s]."""
+        deadline = time.monotonic() + timeout
+        while True:
+            self._refresh()
+            with self._lock:
+                if self._motion is not None and self._motion.tm.to_seconds() >= tm:
+                    return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.002)
+
     def last_motion(self) -> PlannedMotion | None:
         """The motion handed over last if the servo still buffers it: what a blend would leave."""
         with self._lock:
@@ -289,12 +302,13 @@ class Handover:
             self._last_id, self._last = motion_id, None  # a jog is no motion a blend could leave
         return motion_id, reply
 
-    def jog_extend(self, motion: int, epoch: int, rows: Joints, final: bool) -> MotionReply:
-        """The jog ``motion``'s next samples, ``rows[0]`` being the last sample it holds (joined at its end: the
-        servo drops a long head's passed samples, so an index would not do); the servo's reply (a refusal if
-        the jog is gone: stopped, aborted, servo off). Raises PlanRefused if the servo does not answer (its
-        queue is then stopped)."""
-        return self._hand(Trajectory(motion, epoch, motion, -1, final, self.dof, rows.reshape(-1)))
+    def jog_extend(self, motion: int, epoch: int, rows: Joints, final: bool, splice: int = -1) -> MotionReply:
+        """The jog ``motion``'s next samples from its sample ``splice`` on, counted from its end (-1: the last;
+        the servo drops a long head's passed samples, so an index from its start would not do), ``rows[0]``
+        being that sample; the servo's reply (a refusal if the jog is gone: stopped, aborted, servo off; or
+        ``late`` if the servo passed the splice). Raises PlanRefused if the servo does not answer (its queue
+        is then stopped)."""
+        return self._hand(Trajectory(motion, epoch, motion, splice, final, self.dof, rows.reshape(-1)))
 
     def progress(self) -> PlannerProgress:
         """The queue and the pause now."""

@@ -1,26 +1,25 @@
 """Jogging: ``Ext/jogJoint``, ``Ext/jogCartesian`` and ``Ext/jogStop``, a motion that goes on while its lease is renewed.
 
 A jog is one motion of the servo's interpolator that this module keeps extending: it is handed over as a head
-(``final`` false, as an early start's), and every :data:`TICK` the jog thread appends the next samples at its
-last one, so that about :data:`HORIZON` of path lies ahead of the servo. The two ways it ends:
+(``final`` false, as an early start's), and what the servo holds of it always ends **at rest, by the lease's
+end plus** :data:`GRACE`: the jog's samples, then their stop. While the lease runs, the jog thread replaces that
+stop with more of the jog and a new stop (a splice at the stop's first sample, at least :data:`LEAD` ahead of
+the servo), every renewal and every :data:`TICK`, keeping about :data:`HORIZON` of path ahead. The ways it ends:
 
-* **The lease lapses, or ``jogStop``**: the servo is told to stop (``MotionAction.STOP``): it brakes on the
-  buffered path, jerk-limited, and holds; the queue is discarded. A lapse is logged, not alarmed.
-* **A limit ahead**: every extension is checked before it is handed over *with the braking that would follow
-  it* (joint soft limits, the Cartesian soft-limit box, the obstacles): the arm can always stop from the end
-  of what the servo holds. An extension that fails is replaced by that braking (``final``): the arm stops
-  before the limit, never past it, and the reply to the next renewal names the limit. A joint jog runs to its
-  soft limit exactly (the profile's target is the limit).
+* **The lease lapses**: nothing replaces the stop. The arm is at rest by the lease's end plus ``GRACE`` (in
+  planned time: at 100 % override), on the samples the servo holds: this process may be frozen or gone, the
+  dead-man holds. A lapse is logged, not alarmed.
+* **``jogStop``**: the servo is told to stop (``MotionAction.STOP``): it brakes on the buffered path at once,
+  jerk-limited, and holds; the queue is discarded.
+* **A limit ahead**: every extension is checked before it is handed over *with its stop* (joint soft limits,
+  the Cartesian soft-limit box, the obstacles). An extension that fails is cut to its longest passing
+  beginning and its stop (``final``): the arm stops before the limit, never past it, and the reply to the
+  next renewal names the limit. A joint jog runs to its soft limit exactly (the profile's target is the limit).
 
-If this process stalls, the servo runs out of samples at the end of the head and slows down on it to a stop
-(``interpolator.head_cap``): the dead-man holds without the planner.
-
-The path: a joint jog moves one joint along its axis; a Cartesian jog moves the control point along or about
-one axis of the robot frame or of its own frame, each sample solved from the one before by one damped least
-squares step (Chiaverini's damping, growing near a singularity), so that near one the jog slows down instead
-of asking the joints for speeds they do not have, and a jog the other way backs out. The speed along the
-path follows a jerk-limited profile (Ruckig, one degree of freedom) within the settings' speed and
-acceleration time; the speed override scales it in the servo, as any motion.
+A jog goes no faster than it can stop within half its lease (plus ``GRACE``, less ``TICK`` and ``LEAD``):
+renewed at least twice per lease, it never begins the stop it holds. Renewed later, within the lease, it
+slows down and goes on. The path and the speed along it: ``jog_path.py``; the speed override scales a jog in
+the servo, as any motion.
 
 No I/O but through :class:`~.handover.Handover`; tests: ``tests/test_jog.py``.
 """
@@ -36,14 +35,13 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
-import pinocchio as pin
 from numpy.typing import NDArray
-from ruckig import InputParameter, OutputParameter, Result, Ruckig
 
 from jara_arm.kinematics import Kinematics
 from jara_arm.robots import Obstacle, RobotModel
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
+from jara_arm.schema.motion import TrajectoryRefusal
 from jara_arm.schema.operations import JOG_AXES, JOG_FRAMES, JOG_LEASE_MS, OP
 from jara_arm.schema.planner import ControlAction, MotionSettings
 from jara_arm.services.runtime.threads import LoopThread
@@ -53,7 +51,8 @@ from .checks import Checks
 from .collision import DEFAULT_MARGIN, PathChecker
 from .frames import Frames
 from .handover import Handover
-from .profile import ProfileLimits, stop_profile
+from .jog_path import CartesianPath, JointPath, Track, speed_to_stop_within
+from .profile import ProfileLimits
 from .request import PlanRefused
 from .sampling import BatchFk
 from .trajectory import Joints
@@ -62,19 +61,19 @@ log = logging.getLogger(__name__)
 
 #: The jog thread looks at the lease and extends the jog this often [s].
 TICK = 0.01
-#: Path kept buffered ahead of the servo [s of planned time]. The servo caps a head's speed so that it could
-#: stop within half of what is left of it (``interpolator.head_cap``): at the scale's slowest rate (10/s) full
-#: speed needs 0.18 s left; this keeps the jog at its speed with a tick or two of lateness to spare.
+#: Path kept buffered ahead of the servo before the stop [s of planned time], for a long lease.
 HORIZON = 0.3
+#: The stop the servo holds ends this long after the lease [s]: the issue's bound is 50 ms; the other 30 ms
+#: are for the renewal's way to this process (the lease runs from its arrival) and a late servo cycle.
+GRACE = 0.02
+#: A splice is sent this far ahead of the servo [s]: a tick's lateness and the way to the servo.
+LEAD = 0.02
 #: A joint jog stops this far inside its soft limit [rad or m]: the servo refuses a command outside it.
 LIMIT_MARGIN = 1e-6
 #: A jog that could move no joint more than this before a limit is refused, naming it [rad or m]: it is there.
 #: From rest a jog may creep closer than it stopped from speed (its stop is shorter), and again, each time by
 #: less: below a milliradian (about a millimetre at the tool) it is refused instead.
 CREEP = 1e-3
-#: Damped least squares: below this manipulability ``sqrt(det(J Jᵀ))`` the damping grows to ``DAMPING`` at 0.
-MANIPULABILITY = 0.02
-DAMPING = 0.05
 #: A Cartesian jog asks each joint for at most this share of its max speed: the rest is the margin for the
 #: change of the joint rates along a sample near a singularity (the servo refuses 110 % as a jump).
 JOINT_SPEED_SHARE = 0.9
@@ -131,167 +130,27 @@ class JogCommand:
         return f"{self.frame} {JOG_AXES[self.axis]} {sign}"
 
 
-class _Track:
-    """The distance along the jog ``s`` [rad or m], its speed and acceleration, one sample at a time (Ruckig,
-    position interface towards ``end``: a joint jog stops on its soft limit exactly)."""
-
-    def __init__(self, dt: float, end: float, limits: ProfileLimits) -> None:
-        self.dt, self.end, self.limits = dt, end, limits
-        self._otg = Ruckig(1, dt)
-        self._inp = InputParameter(1)
-        self._out = OutputParameter(1)
-        self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration = [0.0], [0.0], [0.0]
-        self._inp.target_position, self._inp.target_velocity, self._inp.target_acceleration = [end], [0.0], [0.0]
-        self._inp.max_acceleration, self._inp.max_jerk = [limits.acceleration], [limits.jerk]
-        self.finished = False
-
-    @property
-    def state(self) -> tuple[float, float, float]:
-        inp = self._inp
-        return inp.current_position[0], inp.current_velocity[0], inp.current_acceleration[0]
-
-    def restore(self, state: tuple[float, float, float]) -> None:
-        self._inp.current_position, self._inp.current_velocity, self._inp.current_acceleration = (
-            [state[0]], [state[1]], [state[2]])
-        self.finished = False
-
-    def step(self, speed: float) -> float:
-        """The next sample's ``s``, at most ``speed`` [per s]."""
-        self._inp.max_velocity = [max(speed, 1e-9)]
-        result = self._otg.update(self._inp, self._out)
-        if result not in (Result.Working, Result.Finished):  # never on valid limits: stay where it is
-            self.finished = True
-            return self._inp.current_position[0]
-        self._out.pass_to_input(self._inp)
-        self.finished = result == Result.Finished
-        return self._out.new_position[0]
-
-    def braking(self) -> NDArray[np.float64]:
-        """The samples of ``s`` of the shortest jerk-limited stop from here (after the current one)."""
-        s, sd, sdd = self.state
-        return stop_profile(self.end, s, max(sd, 0.0), sdd, self.limits).sample(self.dt).s[1:]
-
-
-class _JointPath:
-    """A joint jog: joint ``joint`` moves ``sign * s`` from ``q0``."""
-
-    def __init__(self, q0: Joints, joint: int, sign: float) -> None:
-        self.q0, self.joint, self.sign = q0.copy(), joint, sign
-
-    def at(self, q: Joints, s: float) -> Joints:
-        out = q.copy()
-        out[self.joint] = self.q0[self.joint] + self.sign * s
-        return out
-
-    def rate(self, q: Joints) -> Joints:
-        """d q / d s at ``q`` (joints per unit of ``s``)."""
-        g = np.zeros_like(q)
-        g[self.joint] = self.sign
-        return g
-
-    def state(self) -> object:
-        return None  # each sample is a function of s alone
-
-    def restore(self, state: object) -> None:
-        pass
-
-
-class _CartesianPath:
-    """A Cartesian jog: the control point's pose at ``s`` is the start pose moved ``sign * s`` along or about
-    one axis; each sample's joints come from the sample before by one damped least squares step."""
-
-    def __init__(self, checks: Checks, fk_frames: Frames, q0: Joints, cmd: JogCommand, vmax: Joints,
-                 dt: float, accel_time: float) -> None:
-        """``vmax`` [rad/s or m/s]: the joints' speeds; ``accel_time`` [s]: rest to ``vmax`` (the settings')."""
-        kin = checks.kin
-        self.kin, self.n, self.tool, self.dt = kin, checks.n, fk_frames.tool, dt
-        self.vmax = vmax[:self.n]
-        self.amax = self.vmax / accel_time  # [rad/s² or m/s²]
-        self._dq = np.zeros(self.n)  # the step before [rad or m]
-        x0 = kin.control_point(q0[:self.n], self.tool)  # the arm frame, where kinematics works
-        axis = np.zeros(3)
-        axis[cmd.axis % 3] = cmd.sign
-        self.rotation = cmd.axis >= 3
-        # The direction along the arm frame's axes: a robot-frame axis turned by the base offset, or the
-        # control point's own axis turned by its orientation at the start (the tool frame moves with it,
-        # but along a straight line its orientation stays the start's).
-        turn = fk_frames.base.rotation if cmd.frame == "base" else x0.rotation
-        self.direction = turn @ axis
-        self.x0 = x0
-
-    def pose(self, s: float) -> pin.SE3:
-        if self.rotation:
-            return pin.SE3(pin.exp3(self.direction * s) @ self.x0.rotation, self.x0.translation)
-        return pin.SE3(self.x0.rotation, self.x0.translation + self.direction * s)
-
-    def _solve(self, q: Joints, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
-        J = self.kin.jacobian(q[:self.n], self.tool)
-        JJt = J @ J.T
-        w = math.sqrt(max(0.0, float(np.linalg.det(JJt))))
-        damping = DAMPING ** 2 * (1.0 - (w / MANIPULABILITY) ** 2) if w < MANIPULABILITY else 0.0
-        return J.T @ np.linalg.solve(JJt + damping * np.eye(6), rhs)
-
-    def at(self, q: Joints, s: float) -> Joints:
-        target = self.pose(s)
-        now = self.kin.control_point(q[:self.n], self.tool)
-        err = np.concatenate([target.translation - now.translation, pin.log3(target.rotation @ now.rotation.T)])
-        dq = self._solve(q, err)
-        # A step never asks a joint for more than its speed, nor changes it faster than its acceleration: near a
-        # singularity the joint rates a straight line needs change fast (an effort of twice J2's rating was
-        # measured before this); the arm then lags behind the line and the next steps close on it.
-        step = self.amax * self.dt * self.dt
-        dq = np.clip(dq, self._dq - step, self._dq + step)
-        over = np.max(np.abs(dq) / (self.vmax * self.dt))
-        if over > 1.0:
-            dq /= over
-        self._dq = dq
-        out = q.copy()
-        out[:self.n] += dq
-        return out
-
-    def stop(self, q: Joints) -> NDArray[np.float64]:
-        """The samples of a stop from ``q`` moving by the step before: each joint slows down on its own at its
-        acceleration (the arm leaves the line a little; the stop is what the checks assumed, joint by joint)."""
-        rows = []
-        dq = self._dq.copy()
-        step = self.amax * self.dt * self.dt
-        while np.any(dq != 0.0):
-            dq = np.sign(dq) * np.maximum(np.abs(dq) - step, 0.0)
-            q = q.copy()
-            q[:self.n] += dq
-            rows.append(q)
-        self._dq = dq
-        return np.array(rows) if rows else q[None, :].copy()
-
-    def state(self) -> object:
-        return self._dq.copy()
-
-    def restore(self, state: object) -> None:
-        self._dq = np.array(state, dtype=float)
-
-    def rate(self, q: Joints) -> Joints:
-        """d q / d s at ``q``: the joint rates of a unit speed along the jog."""
-        twist = np.concatenate([np.zeros(3), self.direction] if self.rotation else [self.direction, np.zeros(3)])
-        g = np.zeros_like(q)
-        g[:self.n] = self._solve(q, twist)
-        return g
-
-
 @dataclasses.dataclass
 class _Jog:
-    """The jog that runs: what was asked, its path, where its buffered samples end."""
+    """The jog that runs: what was asked, its path, and what the servo holds of it. Indices count the motion's
+    samples from its first [samples]."""
 
     cmd: JogCommand
     settings: MotionSettings
-    path: _JointPath | _CartesianPath
-    track: _Track
-    speed: float  # [rad/s or m/s] the commanded speed along s (the ratio of the max speed)
+    path: JointPath | CartesianPath
+    track: Track
+    speed: float  # [rad/s or m/s] the speed asked for along s (the ratio of the max speed, or what stops in time)
     motion: int  # the servo's motion id
     epoch: int
-    q_end: Joints  # the last buffered sample
+    q_end: Joints  # the jog's last sample before its stop: where the next extension joins
+    cruise_end: int  # its index
+    end: int  # the index of the last sample the servo holds (its stop's, at rest)
+    q_last: Joints  # that sample
     lease_until: float  # [monotonic s]
-    left: float = 0.0  # [samples] the servo had left of it when it last said (``MotionProgress.runningLeft``)
-    left_at: float = 0.0  # [monotonic s] when it said it
+    stop_by: float = 0.0  # [monotonic s] the stop the servo holds ends by then (the lease it was planned for)
+    pos: float = 0.0  # [samples] where the servo was along the motion at ``pos_at``
+    pos_at: float = 0.0  # [monotonic s]
+    full: bool = False  # the last extension stopped where the lease does, not at HORIZON: none until renewed
     ended: str = ""  # why the last extension was the end (a limit ahead), "" while it goes on
 
 
@@ -353,8 +212,8 @@ class Jogger:
                                       f"{jog.cmd.describe()} lapsed {(now - jog.lease_until) * 1e3:.0f} ms ago: "
                                       "it brakes; call again once it holds")
                 jog.cmd, jog.lease_until = cmd, now + cmd.lease
-                jog.speed = cmd.ratio * self._top(cmd, jog.settings)
-                return ReturnCode.OK, f"OK: jogging {cmd.describe()} at {cmd.ratio * 100:.0f} %"
+                jog.speed = self._speed(cmd, jog.settings, jog.track.limits)
+                return ReturnCode.OK, f"OK: jogging {self._describe(jog)}"
             ended = self._ended
             if ended is not None and ended[0].same_jog(cmd) and ended[2] in self.handover.progress().queued:
                 raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: stopping before the limit: {ended[1]}")
@@ -365,14 +224,13 @@ class Jogger:
                 raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
             q0, epoch = start()
             jog = self._begin(cmd, settings, q0, epoch)
-            if jog.ended:  # the head already brakes before a limit: nothing to renew
+            if jog.ended:  # the head already stops before a limit: nothing to renew
                 self._ended = (cmd, jog.ended, jog.motion)
                 log.info("jog %s: stopping before the limit: %s", cmd.describe(), jog.ended)
                 return ReturnCode.OK, f"OK: jogging {cmd.describe()}, stopping before the limit: {jog.ended}"
             self._jog = jog
-            log.info("jog %s at %.0f %% started (motion %d, lease %.0f ms)", cmd.describe(), cmd.ratio * 100,
-                     jog.motion, cmd.lease * 1e3)
-            return ReturnCode.OK, f"OK: jogging {cmd.describe()} at {cmd.ratio * 100:.0f} % (motion {jog.motion})"
+            log.info("jog %s started (motion %d, lease %.0f ms)", self._describe(jog), jog.motion, cmd.lease * 1e3)
+            return ReturnCode.OK, f"OK: jogging {self._describe(jog)} (motion {jog.motion})"
 
     def stop(self, why: str) -> str:
         """End the jog now: the servo brakes on its path. What it did, for the reply."""
@@ -391,7 +249,20 @@ class Jogger:
             return float(checks.vmax(s)[cmd.joint])
         return s.maxSpeedCartesian.rotation if cmd.axis >= 3 else s.maxSpeedCartesian.translation
 
-    def _begin(self, cmd: JogCommand, s: MotionSettings, q0: Joints, epoch: int) -> _Jog:
+    def _speed(self, cmd: JogCommand, s: MotionSettings, limits: ProfileLimits) -> float:
+        """The speed along the jog [rad/s or m/s]: the share asked for of the max, at most what stops within
+        half the lease (module docstring)."""
+        return min(cmd.ratio * self._top(cmd, s), speed_to_stop_within(cmd.lease / 2 + GRACE - TICK - LEAD, limits))
+
+    def _describe(self, jog: _Jog) -> str:
+        asked = jog.cmd.ratio * self._top(jog.cmd, jog.settings)
+        if jog.speed >= asked * (1.0 - 1e-9):
+            return f"{jog.cmd.describe()} at {jog.cmd.ratio * 100:.0f} %"
+        return (f"{jog.cmd.describe()} at {jog.speed / asked * jog.cmd.ratio * 100:.0f} % of the "
+                f"{jog.cmd.ratio * 100:.0f} % asked: what stops within half its {jog.cmd.lease * 1e3:.0f} ms lease")
+
+    def _path(self, cmd: JogCommand, s: MotionSettings, q0: Joints) -> tuple[JointPath | CartesianPath, Track]:
+        """The path of ``cmd`` from ``q0`` and the track along it (from rest); raises PlanRefused."""
         checks, _, _ = self._kit()
         top = self._top(cmd, s)
         if cmd.joint >= 0:
@@ -402,77 +273,99 @@ class Jogger:
                 bound = f"upper {hi[i]:.6g}" if cmd.sign > 0 else f"lower {lo[i]:.6g}"
                 raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: J{i + 1} is at its joint soft limit "
                                   f"({bound}): jog the other way")
-            limits = ProfileLimits.from_accel_time(top, s.accelTimeJoint)
-            path: _JointPath | _CartesianPath = _JointPath(q0, i, cmd.sign)
-            end = room
-        else:
-            rule = families.rule(self.model, families.CartesianKind.LINEAR)
-            if isinstance(rule, families.Refused) or not all(rule.mask) \
-                    or rule.orientation is not families.Orientation.FULL:
-                why = rule.why if isinstance(rule, families.Refused) else (
-                    f"a {self.model.axis_num}-axis {self.model.family.value} arm cannot hold all six components "
-                    "of the pose (a Cartesian jog keeps the five it does not move)")
-                raise PlanRefused(ReturnCode.NG, f"{cmd.op} refused: {why}")
-            limits = ProfileLimits.from_accel_time(top, s.accelTimeCartesian)
-            path = _CartesianPath(checks, Frames.of(s), q0, cmd, checks.vmax(s), self.dt, s.accelTimeJoint)
-            end = CARTESIAN_REACH
-        jog = _Jog(cmd, s, path, _Track(self.dt, end, limits), cmd.ratio * top, 0, epoch, q0.copy(),
-                   time.monotonic() + cmd.lease)
-        rows, ended = self._extend(jog, int(round(HORIZON / self.dt)))
+            return JointPath(q0, i, cmd.sign), Track(self.dt, room, ProfileLimits.from_accel_time(
+                top, s.accelTimeJoint))
+        rule = families.rule(self.model, families.CartesianKind.LINEAR)
+        if isinstance(rule, families.Refused) or not all(rule.mask) \
+                or rule.orientation is not families.Orientation.FULL:
+            why = rule.why if isinstance(rule, families.Refused) else (
+                f"a {self.model.axis_num}-axis {self.model.family.value} arm cannot hold all six components "
+                "of the pose (a Cartesian jog keeps the five it does not move)")
+            raise PlanRefused(ReturnCode.NG, f"{cmd.op} refused: {why}")
+        path = CartesianPath(checks, Frames.of(s), q0, cmd.frame, cmd.axis, cmd.sign, checks.vmax(s), self.dt,
+                             s.accelTimeJoint)
+        return path, Track(self.dt, CARTESIAN_REACH, ProfileLimits.from_accel_time(top, s.accelTimeCartesian))
+
+    def _begin(self, cmd: JogCommand, s: MotionSettings, q0: Joints, epoch: int) -> _Jog:
+        path, track = self._path(cmd, s, q0)
+        now = time.monotonic()
+        jog = _Jog(cmd, s, path, track, self._speed(cmd, s, track.limits), 0, epoch, q0.copy(), 0, 0, q0.copy(),
+                   now + cmd.lease)
+        rows, moved, ended = self._extend(jog, int(round(HORIZON / self.dt)), (cmd.lease + GRACE) / self.dt)
         if ended and np.abs(rows[-1] - q0).max() < CREEP:  # at the limit already: nothing left to jog
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: {ended}")
         head = np.vstack([q0[None, :], rows])
         jog.motion, reply = self.handover.jog_start(head, epoch, final=bool(ended))
-        jog.left, jog.left_at = len(head) - 1.0, time.monotonic()
+        jog.cruise_end, jog.end, jog.q_last = moved, len(head) - 1, head[-1].copy()
+        jog.stop_by, jog.pos, jog.pos_at = jog.lease_until + GRACE, 0.0, now
         jog.ended = ended
         return jog
 
     # ------------------------------------------------------------------ extensions
-    def _extend(self, jog: _Jog, count: int) -> tuple[NDArray[np.float64], str]:
-        """The next ``count`` samples after ``jog.q_end`` (advancing its track and ``q_end``), checked with the
-        braking that would follow them. If that fails: the longest of their first samples that still passes,
-        then the braking (the jog ends there), and why."""
+    def _extend(self, jog: _Jog, count: int, budget: float) -> tuple[NDArray[np.float64], int, str]:
+        """At most ``count`` samples of the jog after ``jog.q_end``, each with a stop that ends within ``budget``
+        samples of it (advancing the track, the path and ``q_end``), then that stop, and the last sample again
+        (at rest: ``interpolator.Buffered.rests``); how many are the jog's; and why the jog ends there ("" if
+        it does not). The samples are checked with their stop; where they fail, the longest of their first
+        samples that still passes, then its stop, and why."""
         before_q, before_s, before_p = jog.q_end.copy(), jog.track.state, jog.path.state()
-        chunk, why = self._try(jog, count)
+        chunk, why = self._try(jog, count, budget)
         if not why:
-            jog.q_end = chunk[-1]
+            if len(chunk):
+                jog.q_end = chunk[-1]
             if jog.track.finished and jog.cmd.joint >= 0:
                 lim = "upper" if jog.cmd.sign > 0 else "lower"
-                return chunk, f"J{jog.cmd.joint + 1} reached its joint soft limit ({lim})"
-            return chunk, ""
+                why = f"J{jog.cmd.joint + 1} reached its joint soft limit ({lim})"
+            return self._with_stop(jog, chunk), len(chunk), why
         # A limit ahead: bisect for the last sample from which the arm still stops in time (the samples before
-        # the one that fails are checked in order: a limit comes nearer along the jog). The braking from
-        # where the servo holds was checked with the extension before, so none passing still has one.
+        # the one that fails are checked in order: a limit comes nearer along the jog). The stop from where
+        # the servo holds was checked with the extension before, so none passing still has one.
         good, bad = 0, len(chunk)
         best: tuple[NDArray[np.float64], tuple[float, float, float], object] | None = None
         while bad - good > 1:
             mid = (good + bad) // 2
             jog.track.restore(before_s)
             jog.path.restore(before_p)
-            trial, failed = self._try(jog, mid)
+            trial, failed = self._try(jog, mid, budget)
             if failed:
                 bad = mid
             else:
                 good, best = mid, (trial, jog.track.state, jog.path.state())
         jog.track.restore(best[1] if best is not None else before_s)
         jog.path.restore(best[2] if best is not None else before_p)
-        start = best[0][-1] if best is not None else before_q
-        brake = self._braking(jog, start)
-        parts = [p for p in (best[0] if best is not None else None, brake) if p is not None and len(p)]
-        rows = np.vstack(parts) if parts else before_q[None, :]
-        jog.q_end = rows[-1]
-        return rows, why
+        kept = best[0] if best is not None else chunk[:0]
+        jog.q_end = kept[-1] if len(kept) else before_q
+        return self._with_stop(jog, kept), len(kept), why
 
-    def _try(self, jog: _Jog, count: int) -> tuple[NDArray[np.float64], str]:
-        """``count`` samples on from ``jog.q_end`` (advancing the track), and why they fail ("" if they do not)."""
+    def _with_stop(self, jog: _Jog, chunk: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``chunk``, the stop from its end (from the track's and the path's state, left as they are), and the
+        last sample again."""
+        state = jog.path.state()
+        stop = self._braking(jog, jog.q_end)
+        jog.path.restore(state)
+        parts = [p for p in (chunk, stop) if len(p)]
+        rows = np.vstack(parts) if parts else jog.q_end[None, :]
+        return np.vstack([rows, rows[-1:]])
+
+    def _try(self, jog: _Jog, count: int, budget: float) -> tuple[NDArray[np.float64], str]:
+        """Up to ``count`` samples on from ``jog.q_end`` whose stop ends within ``budget`` samples (advancing
+        the track and the path), and why they fail the checks ("" if they do not)."""
         checks, collisions, fk = self._kit()
         rows = []
         q = jog.q_end
-        for _ in range(count):
-            q = jog.path.at(q, jog.track.step(jog.speed if jog.cmd.joint >= 0 else self._cap(jog, q)))
+        for i in range(count):
+            before = jog.track.state, jog.path.state()
+            q_next = jog.path.at(q, jog.track.step(jog.speed if jog.cmd.joint >= 0 else self._cap(jog, q)))
+            if i + 1 + max(jog.track.stop_time(), jog.path.stop_time()) / self.dt > budget:
+                jog.track.restore(before[0])  # its stop would end after the lease: the stop begins here
+                jog.path.restore(before[1])
+                break
+            q = q_next
             rows.append(q)
             if jog.track.finished:
                 break
+        if not rows:
+            return np.empty((0, self.model.dof)), ""
         chunk = np.array(rows)
         return chunk, self._check(jog, chunk, checks, collisions, fk)
 
@@ -486,13 +379,14 @@ class Jogger:
         return min(jog.speed, allowed)
 
     def _braking(self, jog: _Jog, q: Joints) -> NDArray[np.float64]:
-        if isinstance(jog.path, _CartesianPath):
-            return jog.path.stop(q)
+        if isinstance(jog.path, CartesianPath):
+            stop = jog.path.stop(q)
+            return stop if np.any(stop != q) else stop[:0]
         rows = []
         for s in jog.track.braking():
             q = jog.path.at(q, float(s))
             rows.append(q)
-        return np.array(rows)
+        return np.array(rows) if rows else np.empty((0, self.model.dof))
 
     def _check(self, jog: _Jog, chunk: NDArray[np.float64], checks: Checks, collisions: PathChecker,
                fk: BatchFk) -> str:
@@ -504,7 +398,7 @@ class Jogger:
         ahead = np.vstack([chunk, last + jog.path.rate(last) * ds]) if ds > 0.0 else chunk
         n = self.model.axis_num
         lo, hi = checks.soft_limits(jog.settings)
-        if isinstance(jog.path, _CartesianPath) and len(chunk) >= 2:
+        if isinstance(jog.path, CartesianPath) and len(chunk) >= 2:
             # Each joint must also be able to stop on its own at its acceleration: near a singularity the joints
             # lag the line, and a wrist axis spun fast stops further than the line's stop says.
             # Every sample's (the servo checks every command so).
@@ -543,38 +437,64 @@ class Jogger:
             if jog is None:
                 return
             now = time.monotonic()
-            if now > jog.lease_until:
-                silent = now - jog.lease_until + jog.cmd.lease
-                lapsed = True
-            else:
-                lapsed = False
-                want = int(round(HORIZON / self.dt)) - self._ahead(jog, now)
-                if want >= int(round(TICK / self.dt)):
-                    self._extend_jog(jog, want)
-        if lapsed:
-            self.stop(f"the lease lapsed ({silent * 1e3:.0f} ms without a renewal)")
+            if now <= jog.lease_until:
+                self._go_on(jog, now)
+                return
+            # Lapsed: the servo holds the stop, at rest by the lease's end plus GRACE; no more after it.
+            self._jog = None
+        reply = self.handover.jog_extend(jog.motion, jog.epoch, jog.q_last[None, :], final=True)
+        silent = (now - jog.lease_until + jog.cmd.lease) * 1e3
+        log.info("jog %s: the lease lapsed (%.0f ms without a renewal): stopping on its path%s", jog.cmd.describe(),
+                 silent, "" if reply.id == ReturnCode.OK else f" ({reply.comment})")
 
-    def _extend_jog(self, jog: _Jog, count: int) -> None:
-        held = jog.q_end.copy()
-        rows, ended = self._extend(jog, count)
-        # Each extension starts on the last sample the servo holds (the splice point), repeated.
-        reply = self.handover.jog_extend(jog.motion, jog.epoch, np.vstack([held, rows]), final=bool(ended))
+    def _go_on(self, jog: _Jog, now: float) -> None:
+        """Replace the stop the servo holds by more of the jog and a new stop, if there is more to give."""
+        pos = min(float(jog.end), jog.pos + (now - jog.pos_at) / self.dt)  # where the servo is, at full speed
+        renewed = jog.lease_until + GRACE > jog.stop_by
+        stop_by = pos + (jog.lease_until + GRACE - now) / self.dt  # [samples]
+        if jog.cruise_end >= pos + LEAD / self.dt:
+            at = jog.cruise_end  # the stop has not begun: it is replaced
+        elif renewed:
+            # Renewed after its stop began: the jog goes on from where that stop ends, at rest.
+            at = jog.end
+            try:
+                jog.path, jog.track = self._path(jog.cmd, jog.settings, jog.q_last)
+            except PlanRefused as exc:  # it stopped on a limit: nothing more to jog this way
+                self._jog = None
+                log.info("jog %s ended: %s", jog.cmd.describe(), exc.comment)
+                return
+            jog.q_end = jog.q_last.copy()
+        else:
+            return  # stopping as the lease says, unless renewed
+        count = int(pos + HORIZON / self.dt - at)
+        if count <= 0 or not renewed and (jog.full or count < int(round(TICK / self.dt))):
+            return  # nothing more to give until a renewal, or until the servo has taken some
+        before = jog.q_end.copy(), jog.track.state, jog.path.state()
+        rows, moved, ended = self._extend(jog, count, stop_by - at)
+        jog.full = moved < count
+        if moved == 0 and not ended and at == jog.cruise_end:
+            return  # the same stop again
+        reply = self.handover.jog_extend(jog.motion, jog.epoch, np.vstack([before[0][None, :], rows]),
+                                         final=bool(ended), splice=at - jog.end - 1)
+        if reply.refusal == TrajectoryRefusal.LATE.value:  # the servo passed the splice: the next tick goes on
+            jog.q_end, _, _ = before
+            jog.track.restore(before[1])
+            jog.path.restore(before[2])
+            jog.pos, jog.pos_at = float(jog.cruise_end), now
+            return
         if reply.id != ReturnCode.OK:
             log.info("jog %s ended: the servo did not take its extension: %s", jog.cmd.describe(), reply.comment)
             self._jog = None
             return
+        jog.cruise_end, jog.end = at + moved, at + len(rows)
+        jog.q_last, jog.stop_by = rows[-1].copy(), jog.lease_until + GRACE
         p = reply.progress
         if p.running == jog.motion:
-            jog.left, jog.left_at = p.runningLeft, time.monotonic()
-        if ended:  # the braking before a limit is buffered: the jog is over, its motion ends at rest
+            jog.pos, jog.pos_at = jog.end - p.runningLeft, time.monotonic()
+        if ended:  # the stop before a limit is buffered: the jog is over, its motion ends at rest
             self._jog = None
             self._ended = (jog.cmd, ended, jog.motion)
             log.info("jog %s: stopping before the limit: %s", jog.cmd.describe(), ended)
 
-    def _ahead(self, jog: _Jog, now: float) -> int:
-        """Samples buffered ahead of the servo: from its last word, at full speed since (an override or a pause
-        only makes it more)."""
-        return max(0, int(jog.left - (now - jog.left_at) / self.dt))
 
-
-__all__ = ["HORIZON", "JogCommand", "Jogger", "TICK"]
+__all__ = ["GRACE", "HORIZON", "JogCommand", "Jogger", "LEAD", "TICK"]

@@ -83,6 +83,9 @@ from .worker import PlanningProcess
 
 log = logging.getLogger("jara_arm.planner")
 
+#: [s] How long a jog's start waits for the servo's word on its queue to catch up with the command's view of
+#: the servo (``Servo/motion`` comes on every change and every 0.1 s).
+QUEUE_NEWS = 0.25
 #: Times a motion is re-planned when a stop or abort moved the queue's end while it was planned.
 _REPLAN = 3
 
@@ -279,6 +282,11 @@ class PlannerService:
     def _jog_start(self, wire: MotionRequest) -> tuple[Joints, int]:
         """Where a new jog starts and the servo's epoch; refused unless nothing is queued, moving or paused."""
         start, epoch = self.handover.start_point(wire.servo)
+        if not self.handover.can_start_early():
+            # The command forwards a jog only when the servo's status says the arm is at rest; the servo's word on
+            # its queue may not have reached this process yet (a jog that ended a moment ago, a busy machine).
+            if wire.servo.seq and self.handover.heard_since(wire.servo.tm.to_seconds(), QUEUE_NEWS):
+                start, epoch = self.handover.start_point(wire.servo)
         if not self.handover.can_start_early():
             raise PlanRefused(ReturnCode.STATUS_ERR, f"{wire.op} refused: a motion runs, is queued or is paused "
                               f"(wait for it, or {OP.stop} it)")

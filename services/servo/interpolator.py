@@ -80,6 +80,9 @@ class Buffered:
     #: checks against the soft limits ``limits`` (``ControlLaw.screen``); None: not screened.
     screened: np.ndarray | None = None
     limits: object = None
+    #: Its last two samples are the same: it ends at rest. A head that does (a jog's, which ends in its
+    #: stop) needs no cap: the arm stops on its samples, and holding at its end is no late rest.
+    rests: bool = False
 
     @property
     def end(self) -> int:
@@ -109,7 +112,8 @@ def scale_rate(q: np.ndarray, dt: float, max_accel: np.ndarray) -> float:
 def prepare(motion: int, rows: np.ndarray, final: bool, dt: float, max_accel: np.ndarray) -> Buffered:
     """A trajectory ready to hand to :meth:`Interpolator.submit` (off the real-time path)."""
     q = np.array(rows, dtype=float)
-    return Buffered(motion, q, final, scale_rate(q, dt, max_accel))
+    rests = len(q) >= 2 and bool(np.array_equal(q[-1], q[-2]))
+    return Buffered(motion, q, final, scale_rate(q, dt, max_accel), rests=rests)
 
 
 def head_cap(remaining: float, rate: float) -> float:
@@ -243,8 +247,8 @@ class Interpolator:
         return None, "buffered"
 
     def _splice(self, traj: Buffered, last: Buffered, splice: int) -> tuple[TrajectoryRefusal | None, str]:
-        k = last.end if splice < 0 else splice
-        if splice >= 0 and not 0 <= splice <= last.end:
+        k = last.end + 1 + splice if splice < 0 else splice  # negative: counted from the end (-1: the last)
+        if not 0 <= k <= last.end:
             return TrajectoryRefusal.START, f"splice {splice} is outside motion {last.motion}'s samples 0..{last.end}"
         if len(self.queue) == 1 and self.tau > k:
             return TrajectoryRefusal.LATE, f"motion {last.motion} is past sample {k}"
@@ -257,7 +261,7 @@ class Interpolator:
             cut = int(self.tau) if len(self.queue) == 1 and self.tau >= TRIM_AFTER else 0
             last.q = np.concatenate([last.q[cut:k], traj.q])
             self.tau -= cut
-            last.final, last.rate, last.full = traj.final, min(last.rate, traj.rate), None
+            last.final, last.rate, last.full, last.rests = traj.final, min(last.rate, traj.rate), None, traj.rests
             if last.screened is not None and traj.screened is not None and traj.limits is last.limits and k > cut:
                 # The segment into the joint ends on the rest's first sample, not the head's: checked in full.
                 last.screened = np.concatenate([last.screened[cut:k - 1], [False], traj.screened])
@@ -340,7 +344,7 @@ class Interpolator:
         while tau >= cur.end:
             if not cur.final:  # a head at its last sample: hold there until its rest comes
                 tau = float(cur.end)
-                if self.scale > 0.0:
+                if self.scale > 0.0 and not cur.rests:
                     self.ran_out += 1
                 self.scale, self._scale_v, self._scale_a = 0.0, 0.0, 0.0
                 break
@@ -387,7 +391,7 @@ class Interpolator:
         return 0.0 if (self.paused or self.stopping) else self.override
 
     def _cap(self, b: Buffered, tau: float) -> float:
-        if b.final:
+        if b.final or b.rests:
             return 1.0
         return head_cap((b.end - tau) * self.dt, b.rate)
 
