@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 import textwrap
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from jara_arm.schema.operations import OP
 from jara_arm.schema.program import ProgramError, load, parse
 
 from .harness import LiveArm, launched, listening
-from .support import LAUNCHER, Proc, client_session
+from .support import LAUNCHER, Proc, client_session, wait_until
 from .test_collision import TURN, _box_ahead
 
 
@@ -200,3 +201,47 @@ def test_live_a_program_run_step_by_step_waits_for_enter(arm: LiveArm, tmp_path:
                          input="\n\n", capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stdout + run.stderr
     assert run.stdout.count("Enter to run it") == 2 and "step 2/2: ptp here: arrived" in run.stdout, run.stdout
+
+
+def test_live_pause_resume_and_stop_act_on_a_running_program(arm: LiveArm, tmp_path: Path) -> None:
+    """Another client pauses the program's motion: the arm holds and the run waits; resumed, it goes on to its
+    end (exit 0). Stopped, the run ends saying so (exit 1) and the step after it never starts."""
+    here = [float(x) for x in arm.joints()[:arm.model.axis_num]]
+    there = [*here]
+    there[0] -= 0.4
+    path = tmp_path / "there_and_back.yaml"
+    path.write_text(f"points:\n  here: {{joints: {here}}}\n  there: {{joints: {there}}}\n"
+                    "steps:\n  - ptp: there\n    speed: 10\n  - ptp: here\n    speed: 10\n")
+    run = Proc([*LAUNCHER, "program", "run", str(path), "--connect", listening(arm.proc)])
+    try:
+        run.wait_for_line("step 1/2: ptp there: motion", timeout=60)
+        wait_until(lambda: arm.joints()[0] < here[0] - 0.05, 30.0, what="J1 under way")
+        assert arm.client.middle(OP.pause).ok
+        wait_until(lambda: arm.state() & StateBit.PAUSED and not moving(arm), 10.0, what="the arm held")
+        held = arm.joints()[0]
+        time.sleep(0.5)  # paused: the run waits, nothing moves
+        assert abs(arm.joints()[0] - held) < 1e-4 and run.popen.poll() is None, run.output
+        assert arm.client.middle(OP.resume).ok
+        assert run.popen.wait(120) == 0, run.output
+    finally:
+        run.stop()
+    assert "step 2/2: ptp here: arrived" in run.output and "program done: 2 steps" in run.output, run.output
+    # Stopped in its first step: the run says so and ends; the second step never starts.
+    run = Proc([*LAUNCHER, "program", "run", str(path), "--connect", listening(arm.proc)])
+    try:
+        run.wait_for_line("step 1/2: ptp there: motion", timeout=60)
+        wait_until(lambda: arm.joints()[0] < here[0] - 0.05, 30.0, what="J1 under way")
+        assert arm.client.middle(OP.stop).ok
+        assert run.popen.wait(60) == 1, run.output
+    finally:
+        run.stop()
+    assert "step 1/2: ptp there: FAILED" in run.output and "step 2/2" not in run.output, run.output
+    arm.wait_rest()
+    assert here[0] - 0.4 < arm.joints()[0] < here[0] - 0.05, "it went on after the stop"
+
+
+def moving(arm: LiveArm) -> bool:
+    """Whether J1 moves by more than 1e-5 rad over 50 ms."""
+    a = arm.joints()[0]
+    time.sleep(0.05)
+    return abs(arm.joints()[0] - a) > 1e-5

@@ -14,6 +14,7 @@ import datetime
 import json
 import signal
 import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -134,6 +135,36 @@ def test_an_observer_reads_but_cannot_move(cell: SecureCell, operator: Client) -
         assert np.allclose(after, before, atol=1e-6), "the arm moved"
         assert operator.state & StateBit.SERVO_ON, "the observer's servoOFF got through"
         observer.close()
+
+
+def test_an_observers_pendant_shows_the_arm_and_cannot_move_it(cell: SecureCell, operator: Client) -> None:
+    """``jara-arm pendant`` with an observer's identity: its page has the arm's state, its jog and servoOFF are
+    refused by the router (the page says so), nothing moves."""
+    page_port = free_port()
+    pendant = Proc([*LAUNCHER, "pendant", "--no-3d", "--port", str(page_port), "--secure", str(cell.cell.root),
+                    "--identity", "olga", "--connect", cell.endpoint])
+    try:
+        pendant.wait_for_line("jara-arm pendant: http://", timeout=60)
+        url = f"http://127.0.0.1:{page_port}/api/"
+        with urllib.request.urlopen(url + "state", timeout=30) as r:
+            state = json.load(r)
+        assert state["axes"] == robots.robot(ROBOT).axis_num and state["state"] & StateBit.SERVO_ON, state
+        before = np.array(state["joints"])
+        mark = cell.log_mark()
+        for action, body in (("jog", {"axis": 1, "speedRatio": 20}), ("servoOFF", {})):
+            request = urllib.request.Request(url + action, data=json.dumps(body).encode(), method="POST",
+                                             headers={"Content-Type": "application/json"})
+            with urllib.request.urlopen(request, timeout=30) as r:
+                reply = json.load(r)
+            assert reply["id"] != 0 and reply["comment"], (action, reply)
+        # (The router logs a refusal the first time it decides it for a key: servoOFF's was logged above.)
+        cell.refused("refused: olga may not Query (ingress) on JARA_ARM/arm0/Ext/jogJoint", mark)
+        after = np.array(operator.common(OP.getFeedbackPosJoint)["pos"])
+        assert np.allclose(after[:len(before)], before, atol=1e-3), "the arm moved"
+        assert operator.state & StateBit.SERVO_ON, "the observer's servoOFF got through"
+    finally:
+        assert pendant.stop() == 0, pendant.output
+    assert "Traceback" not in pendant.output, pendant.output
 
 
 def test_an_observer_may_stop_the_arm(cell: SecureCell, operator: Client) -> None:
