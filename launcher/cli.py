@@ -12,13 +12,14 @@
     jara-arm echo [--arm ID] [--rate HZ] [--once | --count N] [--timeout S] [--show-key] KEY [Zenoh options]
     jara-arm state [--arm ID] [--once] [--period S] [Zenoh options]
     jara-arm wait [--arm ID] [--timeout S] [--poll S] CONDITION [Zenoh options]
-    jara-arm record [--arm ID]... -o FILE.mcap [--duration S] [Zenoh options]
+    jara-arm record [--arm ID]... -o FILE.mcap [--duration S] [--ros2] [Zenoh options]
     jara-arm replay FILE.mcap [--speed X] [--arm ID]... [Zenoh options]
     jara-arm plot [--arm ID] (--seconds S | --from FILE.mcap) [--start S] [--end S] [--robot NAME] -o FILE.png
                   [--path FILE.png] [--size WxH] [--no-show] [Zenoh options]
     jara-arm view [--arm ID]... [--host ADDRESS] [--port P] [--rate HZ] [Zenoh options]
     jara-arm pendant [--arm ID] [--host ADDRESS] [--port P] [--program FILE] [--no-3d] [Zenoh options]
     jara-arm program (check | run [--step]) FILE [--arm ID] [--cycles N] [Zenoh options]
+    jara-arm ros2 [--arm ID]... [--ros-domain N] [--ros-namespace NS] [--ros-rate HZ] [Zenoh options]
     jara-arm certs init DIR [--days N] [--host H]...
     jara-arm certs issue DIR NAME --role ROLE [--host H]... [--days N] [--force]
     jara-arm certs list DIR
@@ -30,7 +31,8 @@ tcp/127.0.0.1:7447) and print what arrives until SIGINT/SIGTERM
 the same way (``launcher/tools/call.py``, ``echo.py``, ``state_view.py``,
 ``wait.py``), and ``plot`` too unless it reads a recording
 (``launcher/record/plot_command.py``, ``plot.py``); ``view`` serves a web page with
-a live 3D view of the arms (``launcher/view/view.py``). ``certs`` makes a secure
+a live 3D view of the arms (``launcher/view/view.py``); ``ros2`` publishes them
+as ROS 2 topics for nodes on rmw_zenoh (``launcher/ros2/bridge.py``). ``certs`` makes a secure
 cell's directory, its certificate authority and the certificates of its
 identities, and lists them (``launcher/secure/certs.py``). ``up``, ``service`` and
 ``router`` are in ``launcher/up/``.
@@ -54,6 +56,7 @@ from .command import Command
 from .pendant import pendant
 from .program import program_command
 from .record import plot_command, record, replay
+from .ros2 import bridge
 from .secure import certs
 from .tools import call, demo, echo, state_view, wait, watch
 from .up import router, services, up
@@ -63,7 +66,7 @@ from .view import view
 COMMANDS: tuple[Command, ...] = (
     up.COMMAND, services.COMMAND, router.COMMAND, watch.LOGS, watch.ALARMS, demo.COMMAND, call.COMMAND,
     echo.COMMAND, state_view.COMMAND, wait.COMMAND, record.COMMAND, replay.COMMAND, plot_command.COMMAND,
-    view.COMMAND, pendant.COMMAND, program_command.COMMAND, certs.COMMAND, completion.COMMAND,
+    view.COMMAND, pendant.COMMAND, program_command.COMMAND, bridge.COMMAND, certs.COMMAND, completion.COMMAND,
 )
 
 

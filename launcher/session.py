@@ -51,13 +51,17 @@ def add_client_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def open_session(args: argparse.Namespace, parser: argparse.ArgumentParser,
-                 join_within: float | None = None) -> zenoh.Session:
+                 join_within: float | None = None, timestamping: bool = False) -> zenoh.Session:
     """A session on the network of the client options (exit 2 with the reason if it cannot be had), trying
-    for up to ``join_within`` [s] (a command with a timeout, started before the router listens)."""
+    for up to ``join_within`` [s] (a command with a timeout, started before the router listens);
+    ``timestamping``: its samples carry a timestamp (what a Zenoh advanced publisher needs)."""
     connect = args.connect or ([] if args.config else [default_endpoint(args.secure)])
     try:
-        return zenoh.open(zenoh_config(args.mode, args.listen, connect, args.config, args.multicast,
-                                       args.secure, args.identity, join_within))
+        conf = zenoh_config(args.mode, args.listen, connect, args.config, args.multicast, args.secure,
+                            args.identity, join_within)
+        if timestamping:
+            conf.insert_json5("timestamping/enabled", "true")
+        return zenoh.open(conf)
     except CellError as exc:
         parser.error(str(exc))
     except zenoh.ZError as exc:
@@ -66,11 +70,11 @@ def open_session(args: argparse.Namespace, parser: argparse.ArgumentParser,
 
 
 @contextlib.contextmanager
-def listening(args: argparse.Namespace, parser: argparse.ArgumentParser,
-              join_within: float | None = None) -> Iterator[tuple[zenoh.Session, threading.Event]]:
+def listening(args: argparse.Namespace, parser: argparse.ArgumentParser, join_within: float | None = None,
+              timestamping: bool = False) -> Iterator[tuple[zenoh.Session, threading.Event]]:
     """A command that runs until SIGINT / SIGTERM: its session (:func:`open_session`), closed at the end,
     and the event those signals set."""
-    session = open_session(args, parser, join_within)
+    session = open_session(args, parser, join_within, timestamping)
     signals = StopSignals()
     with session:
         yield session, signals.stop

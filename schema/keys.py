@@ -450,3 +450,22 @@ def encoding_of(key: str) -> Encoding:
     if row.encoding.encoding is None:
         raise JaraArmError(f"{row.key} has no encoding of its own ({row.encoding.value})")
     return row.encoding.encoding
+
+
+# -- ROS 2 (``jara-arm ros2``, launcher/ros2/rmw.py): rmw_zenoh's keys, not ours; listed here for the roles ----------
+#: The admin space of rmw_zenoh's liveliness tokens (``@ros2_lv/<domain>/...``).
+ROS2_ADMIN_SPACE = "@ros2_lv"
+#: Zenoh advanced publishers and subscribers (a transient-local topic's cache) add this chunk after a data key.
+ROS2_ADVANCED = "@adv"
+
+
+def ros2_data_keys() -> tuple[str, ...]:
+    """Every rmw_zenoh data key of any ROS domain (``<domain>/<topic>/<type>/<hash>``): a first chunk that
+    starts with a digit (key expressions have no numeric range; no key of ours starts with one)."""
+    return tuple(f"{d}$*/**" for d in "0123456789")
+
+
+def ros2_every_key() -> tuple[str, ...]:
+    """The data keys, the advanced pub/sub keys under them, and the liveliness tokens of rmw_zenoh."""
+    data = ros2_data_keys()
+    return (*data, *(f"{k[:-3]}/**/{ROS2_ADVANCED}/**" for k in data), f"{ROS2_ADMIN_SPACE}/**")

@@ -19,7 +19,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any
 
 from .errors import JaraArmError
-from .keys import ANY_ARM, ArmKeys, any_arm_every_key
+from .keys import ANY_ARM, ArmKeys, any_arm_every_key, ros2_every_key
 from .operations import COMMON, EXT, MIDDLE, Interface, Operation
 
 
@@ -83,8 +83,9 @@ def _every_operation() -> list[Operation]:
 def ingress_rights(role: Role) -> dict[str, list[str]]:
     """What ``role`` may send into the cell: message kind → key expressions (any arm)."""
     everything = any_arm_every_key()
-    if role is Role.ROUTER:
-        return {m: ["**"] for m in EVERY_MESSAGE}
+    ros2 = list(ros2_every_key())
+    if role is Role.ROUTER:  # "**" matches no verbatim chunk (@ros2_lv, @adv): those are listed
+        return {m: ["**", *ros2] for m in EVERY_MESSAGE}
     if role is Role.SERVICE:
         return {m: [everything] for m in EVERY_MESSAGE}
     keys = ArmKeys(ANY_ARM)
@@ -95,8 +96,13 @@ def ingress_rights(role: Role) -> dict[str, list[str]]:
     puts = [keys.estop] + ([keys.pos_cmd] if role is Role.LOW_LEVEL else [])
     # Watching is reading: a client may subscribe to every key and see who is alive, but never
     # declare a queryable or a liveliness token (it would stand in for a service) nor reply.
-    return {"query": sorted(set(queries)), "put": puts, "declare_subscriber": [everything],
-            "declare_liveliness_subscriber": [everything], "liveliness_query": [everything]}
+    rights = {"query": sorted(set(queries)), "put": puts, "declare_subscriber": [everything],
+              "declare_liveliness_subscriber": [everything], "liveliness_query": [everything]}
+    # ROS 2 (rmw_zenoh's keys, ``jara-arm ros2``): any client may be a ROS 2 node, publishing and reading topics,
+    # announcing itself, serving a transient-local topic's cache. None of it reaches an arm.
+    for message in EVERY_MESSAGE:
+        rights[message] = [*rights.get(message, []), *ros2]
+    return rights
 
 
 def egress_rights(role: Role) -> dict[str, list[str]]:
@@ -104,9 +110,12 @@ def egress_rights(role: Role) -> dict[str, list[str]]:
     if role in (Role.ROUTER, Role.SERVICE):
         return ingress_rights(role)
     everything = any_arm_every_key()
-    # Samples, replies, and the declarations that let its queriers and publishers see a match.
-    return {m: [everything] for m in ("put", "reply", "declare_subscriber", "declare_queryable",
-                                      "liveliness_token")}
+    # Samples, replies, and the declarations that let its queriers and publishers see a match; and all of ROS 2.
+    rights = {m: [everything] for m in ("put", "reply", "declare_subscriber", "declare_queryable",
+                                        "liveliness_token")}
+    for message in EVERY_MESSAGE:
+        rights[message] = [*rights.get(message, []), *ros2_every_key()]
+    return rights
 
 
 #: The access-control subject of every link over a Unix socket: the cell bus's.

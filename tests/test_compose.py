@@ -51,7 +51,7 @@ def command(service: dict[str, Any]) -> list[str]:
 
 
 def test_every_service_is_in_the_launcher_table(compose: dict[str, Any]) -> None:
-    names = set(compose["services"]) - {ROUTER, GATEWAY}
+    names = set(compose["services"]) - {ROUTER, GATEWAY, "ros2"}  # ros2: a client (`up --ros2`), not a service
     assert names, "no service besides the routers"
     assert names <= set(NAMES), f"not in the launcher's service table: {names - set(NAMES)}"
     assert ROUTER in compose["services"] and GATEWAY in compose["services"]
@@ -67,6 +67,9 @@ def test_every_command_is_accepted_by_its_parser(compose: dict[str, Any]) -> Non
             assert cmd[1] == "router" and (args.bus if name == ROUTER else args.gateway), f"{name}: {cmd}"
             if name == GATEWAY:  # joins the bus by its compose name
                 assert args.connect and all(f"/{ROUTER}:" in e for e in args.connect), args.connect
+            continue
+        if name == "ros2":  # a client of the gateway, as any ROS 2 tool
+            assert cmd[1] == "ros2" and args.connect and all(f"/{GATEWAY}:" in e for e in args.connect), cmd
             continue
         assert cmd[1:3] == ["service", name], f"compose service {name} runs {cmd[1:3]}"
         check_arm(args.arm)

@@ -335,3 +335,28 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
     import pinocchio as pin
 
     return np.asarray(pin.log3(R))
+
+
+def test_live_a_scara_and_a_gantry_jog_along_the_axes_they_have_and_refuse_the_others() -> None:
+    """A SCARA holds x, y, z and rz (it never tilts its tool), a 3-axis gantry x, y and z: a Cartesian jog moves
+    one of those and holds the others; one about an axis the arm does not have is NG, saying which it has."""
+    with launched("--arm", "scara:scara4", "--arm", "gantry:cartesian3") as (proc, port), \
+            client_session(port) as session:
+        for arm_id, robot, refused in (("scara", "scara4", "rx"), ("gantry", "cartesian3", "rz")):
+            arm = RecordingArm(session, robot, arm_id, proc=proc)
+            arm.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
+            arm.reset()
+            before = arm.pose()
+            hold(arm, OP.jogCartesian, {"frame": "base", "axis": "x", "speedRatio": 20.0, "leaseMs": 300}, 0.6)
+            arm.wait_rest()
+            after = arm.pose()
+            moved = after[:3, 3] - before[:3, 3]
+            assert moved[0] > 0.01 and np.abs(moved[1:]).max() < 1e-3, f"{robot}: moved {moved}"
+            turned = np.linalg.norm(after[:3, :3] - before[:3, :3])
+            assert turned < 1e-3, f"{robot}: the tool turned by {turned}"
+            reply = arm.client.ext(OP.jogCartesian, {"frame": "base", "axis": refused, "speedRatio": 20.0,
+                                                     "leaseMs": 300})
+            assert reply.id == ReturnCode.NG and "only" in reply.comment, reply
+            assert not arm.state() & (StateBit.ALARM | StateBit.MOVING), arm.explain()
+            print(f"{robot}: base x jog moved {moved[0] * 1e3:.1f} mm, off the line "
+                  f"{np.abs(moved[1:]).max() * 1e3:.3f} mm; {refused}: {reply.comment}")

@@ -1,4 +1,5 @@
-"""``jara-arm record [--arm ID]... -o FILE.mcap``: every sample under ``JARA_ARM/<arm>/`` into a recording.
+"""``jara-arm record [--arm ID]... -o FILE.mcap [--ros2]``: every sample under ``JARA_ARM/<arm>/`` into a recording
+(and with ``--ros2`` a ROS 2 bag beside it, ``launcher/ros2/bag.py``).
 
 One subscriber on ``JARA_ARM/<arm>/**`` (``JARA_ARM/**`` without ``--arm``) takes
 every publication, the 1 kHz streams and the call traces included (the servers
@@ -32,6 +33,7 @@ from jara_arm.schema.keys import ArmKeys, any_arm_every_key, arm_of
 from jara_arm.services.runtime.arguments import positive_float
 
 from ..command import USAGE_ERROR, Command, setup_logging
+from ..ros2.bag import BagError, Ros2Bag, bag_path
 from ..session import add_client_zenoh_arguments, arm_id, open_session
 from ..stop_signals import StopSignals
 from .progress import Progress, human_size
@@ -88,16 +90,19 @@ def relayed(key: str) -> bool:
         return False
 
 
-def drain(inbox: Inbox, writer: RecordingWriter, limit: int = _BATCH) -> int:
-    """Write up to ``limit`` waiting samples, not the feedback blocks (:func:`relayed`); how many were taken."""
+def drain(inbox: Inbox, writer: RecordingWriter, limit: int = _BATCH, bag: Ros2Bag | None = None) -> int:
+    """Write up to ``limit`` waiting samples, not the feedback blocks (:func:`relayed`), and what they make of
+    the ROS 2 ``bag`` if there is one; how many were taken."""
     done = 0
     while done < limit and inbox.items:
         received, sample = inbox.items.popleft()
         done += 1
         key = str(sample.key_expr)
         if not relayed(key):
-            writer.write(key, received, publish_time(sample, received),
-                         to_json(sample.payload.to_bytes(), sample.encoding))
+            payload = sample.payload.to_bytes()
+            writer.write(key, received, publish_time(sample, received), to_json(payload, sample.encoding))
+            if bag is not None:
+                bag.take(key, received, payload, sample.encoding)
     return done
 
 
@@ -115,8 +120,9 @@ def lower_priority() -> None:
 
 
 def run_record(session: zenoh.Session, writer: RecordingWriter, settings: RecordSettings, stop: threading.Event,
-               err: TextIO, tty: bool) -> int:
-    """Record until ``stop`` or ``duration``; 0, or 1 if samples were dropped. Closes ``writer``."""
+               err: TextIO, tty: bool, bag: Ros2Bag | None = None) -> int:
+    """Record until ``stop`` or ``duration``, and the ROS 2 ``bag`` beside if there is one; 0, or 1 if samples
+    were dropped. Closes ``writer`` and ``bag``."""
     inbox = Inbox()
     subs = [session.declare_subscriber(key, inbox) for key in subscriptions(settings.arms)]
     progress = Progress(err, tty)
@@ -126,7 +132,7 @@ def run_record(session: zenoh.Session, writer: RecordingWriter, settings: Record
     try:
         progress.say(f"recording {', '.join(subscriptions(settings.arms))} to {writer.path} (Ctrl-C stops)")
         while not stop.is_set() and (end is None or time.monotonic() < end):
-            if not drain(inbox, writer):
+            if not drain(inbox, writer, bag=bag):
                 stop.wait(_POLL)
             now = time.monotonic()
             if now - last[0] >= 1.0:
@@ -139,16 +145,19 @@ def run_record(session: zenoh.Session, writer: RecordingWriter, settings: Record
             progress.say(f"stopping: writing the {len(inbox.items)} samples still buffered")
         linger = time.monotonic() + LINGER  # what was on its way when told to stop happened before the stop
         while time.monotonic() < linger:
-            if not drain(inbox, writer):
+            if not drain(inbox, writer, bag=bag):
                 time.sleep(_POLL)
     finally:
         for sub in subs:
             sub.undeclare()
-        while drain(inbox, writer):  # what came before the undeclaration
+        while drain(inbox, writer, bag=bag):  # what came before the undeclaration
             pass
         writer.close()
+        if bag is not None:
+            bag.close()
     progress.done(f"recorded {writer.count} messages on {writer.channels} keys in {time.monotonic() - t0:.1f} s "
-                  f"to {writer.path} ({human_size(writer.size)})")
+                  f"to {writer.path} ({human_size(writer.size)})"
+                  + (f"; a ROS 2 bag of {bag.count} messages in {bag.path}" if bag is not None else ""))
     if inbox.dropped:
         progress.say(f"jara-arm record: {inbox.dropped} samples dropped: the recorder fell behind "
                      f"({inbox.capacity} buffered at most)")
@@ -161,6 +170,9 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
                         help="an arm to record (repeatable; default: every arm)")
     parser.add_argument("-o", "--output", required=True, metavar="FILE.mcap", help="the file to write")
     parser.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds")
+    parser.add_argument("--ros2", action="store_true",
+                        help="also write a ROS 2 bag (rosbag2, MCAP) of joint_states, tf, robot_description and "
+                        "jara_arm/state into the directory FILE_ros2 (ros2 bag info and Foxglove open it)")
     add_client_zenoh_arguments(parser)
 
 
@@ -177,11 +189,20 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     except SystemExit:
         writer.close()
         raise
+    bag: Ros2Bag | None = None
+    if args.ros2:
+        try:
+            bag = Ros2Bag(bag_path(Path(args.output)), session)
+        except BagError as exc:
+            writer.close()
+            session.close()
+            print(f"{parser.prog}: {exc}", file=sys.stderr)
+            return USAGE_ERROR
     signals = StopSignals()
     lower_priority()
     with session:
         return run_record(session, writer, RecordSettings(tuple(dict.fromkeys(args.arm)), args.duration),
-                          signals.stop, sys.stderr, sys.stderr.isatty())
+                          signals.stop, sys.stderr, sys.stderr.isatty(), bag)
 
 
 COMMAND = Command(

@@ -28,6 +28,7 @@ from jara_arm.services.runtime.realtime import realtime_process
 from jara_arm.services.runtime.timing import SAME_HOST, Health, add_health_arguments, health_argv, health_from_args
 
 from ..command import Command, setup_logging
+from ..ros2.bridge import add_ros_arguments
 from ..stop_signals import StopSignals
 from ..tools.watch import LogPrinter
 from .gateway import private_bus
@@ -69,18 +70,29 @@ class UpSettings:
     bus: tuple[str, ...] = ()
     #: where each arm's program file is (``<dir>/<arm>.program.yaml``, what Ext/teach writes); "": the working directory
     program_dir: str = ""
+    #: ``jara-arm ros2`` as a child of the launcher, with these arguments (``--ros-domain`` ...); None: not run
+    ros2: tuple[str, ...] | None = None
 
 
 #: SCHED_FIFO priority of the cell bus's threads: below the servo (40). The client gateway runs at
 #: normal priority: its work is what clients ask for, without bound.
 ROUTER_RT_PRIORITY = 35
 GATEWAY_LABEL = "client gateway"
+ROS2_LABEL = "ros2 bridge"
 
 
 def demo_argv(arm: ArmSpec, settings: UpSettings) -> list[str]:
     """``jara-arm demo`` for one arm, a client of the launcher's router."""
     return [sys.executable, "-m", "jara_arm.launcher", "demo", "--arm", arm.arm,
             "--connect", local_endpoint(settings.router.endpoints()[0]), *secure_argv(settings)]
+
+
+def ros2_child(settings: UpSettings) -> Child:
+    """``jara-arm ros2`` (``--ros2``): a client of the gateway, as any ROS 2 tool; restarted if it dies."""
+    assert settings.ros2 is not None
+    argv = [sys.executable, "-m", "jara_arm.launcher", "ros2", *settings.ros2,
+            "--connect", local_endpoint(settings.router.endpoints()[0])]
+    return Child(ROS2_LABEL, argv, echo=lambda line: print(line, file=sys.stderr, flush=True))
 
 
 def secure_argv(settings: UpSettings) -> list[str]:
@@ -275,7 +287,9 @@ def run_up(settings: UpSettings, signals: StopSignals) -> int:
             return gateway.gateway_ids[0] in {str(z) for z in session.info.routers_zid()}
 
         # The gateway first, so that it stops last: clients see the services leave.
-        supervisor = Supervisor([[gateway_child(settings, bus)], *[children(s, settings, bus) for s in start_order()]])
+        # The ROS 2 bridge last, so that it stops first: a client of the gateway as any other.
+        supervisor = Supervisor([[gateway_child(settings, bus)], *[children(s, settings, bus) for s in start_order()],
+                                 *([[ros2_child(settings)]] if settings.ros2 is not None else [])])
         readiness = Readiness(settings, presence, gateway_joined, lambda arm, service: output_of(supervisor, arm, service))
         log.info("cell bus on %s; client gateway on %s; starting %d process(es)", ", ".join(cell_bus.endpoints()),
                  ", ".join(gateway.endpoints()), len(supervisor.children))
@@ -339,6 +353,12 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--program-dir", default="", metavar="DIR",
                         help="where each arm's program file is, DIR/<arm>.program.yaml: Ext/teach stores its "
                         "points there (default: the working directory)")
+    parser.add_argument("--ros2", action="store_true",
+                        help="also run `jara-arm ros2`: every arm as ROS 2 topics for nodes on rmw_zenoh")
+    parser.add_argument("--ros-identity", default="", metavar="NAME",
+                        help="with --ros2 in a secure cell: the cell identity the bridge presents (an observer "
+                        "is enough: it only reads the arms)")
+    add_ros_arguments(parser)
     parser.add_argument("--bus-listen", action="append", default=[], metavar="ENDPOINT",
                         help="also open the cell bus (where the services meet; private by default) on "
                         "ENDPOINT, for services of other hosts; clients use --listen (repeatable)")
@@ -361,9 +381,23 @@ def _settings(args: argparse.Namespace, parser: argparse.ArgumentParser) -> UpSe
         if any(a.arm == arm for a in arms):
             parser.error(f"--arm {item}: arm {arm!r} is given twice")
         arms.append(ArmSpec(arm, robot))
-    return UpSettings(tuple(arms), router_settings(args, parser), args.log_level, tuple(args.obstacle),
+    router = router_settings(args, parser)
+    ros2: tuple[str, ...] | None = None
+    if args.ros2:
+        ros2 = ("--ros-domain", str(args.ros_domain), "--ros-rate", str(args.ros_rate),
+                *(("--ros-namespace", args.ros_namespace, "--arm", arms[0].arm) if args.ros_namespace else ()))
+        if args.ros_namespace and len(arms) != 1:
+            parser.error("--ros-namespace names one arm's node: it takes exactly one arm")
+        if router.secure:
+            if not args.ros_identity:
+                parser.error("--ros2 in a secure cell: --ros-identity NAME, the cell identity the bridge presents "
+                             "(`jara-arm certs issue DIR NAME --role observer`)")
+            ros2 += ("--secure", os.path.abspath(router.secure), "--identity", args.ros_identity)
+    elif args.ros_identity:
+        parser.error("--ros-identity is for --ros2")
+    return UpSettings(tuple(arms), router, args.log_level, tuple(args.obstacle),
                       tuple(args.hidden_obstacle), args.demo, health_from_args(args), tuple(args.bus_listen),
-                      args.program_dir)
+                      args.program_dir, ros2)
 
 
 def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:

@@ -53,10 +53,10 @@ from jara_arm.schema.messages import ALARM_EVENT, SERVO_STATUS, SERVO_WORLD, Ser
 from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.planner import MOTION_SETTINGS, PLANNED_PATH, PLANNER_PROGRESS
 from jara_arm.schema.types import Alarm
-from jara_arm.schema.wire_types import StructType
 from jara_arm.services.runtime.arguments import positive_float
 
 from ..command import USAGE_ERROR, Command, setup_logging
+from ..feeds import decode, newest, undeclare
 from ..session import add_client_zenoh_arguments, arm_id, listening
 from ..tools.arm_state import format_state, read_state
 
@@ -89,30 +89,6 @@ class ViewSettings:
     rate: float = DEFAULT_RATE  # [Hz] page updates at most
 
 
-def _decode(kind: StructType[Any], sample: zenoh.Sample | zenoh.Reply) -> Any:
-    """A sample's (or a reply's) message by its encoding label, or None (logged) if malformed."""
-    if isinstance(sample, zenoh.Reply):
-        if sample.ok is None:
-            return None
-        sample = sample.ok
-    payload = sample.payload.to_bytes()
-    try:
-        return codec.decode_message(kind, payload, Encoding.JSON if payload.lstrip()[:1] == b"{"
-                                    else Encoding.of(sample.encoding))
-    except JaraArmError as exc:
-        log.warning("ignored a malformed %s on %s: %s", kind.name, sample.key_expr, exc)
-        return None
-
-
-def _latest(channel: Any) -> Any:
-    """The newest item a handler holds (all of them taken), or None."""
-    item = newest = channel.try_recv()
-    while item is not None:
-        newest = item
-        item = channel.try_recv()
-    return newest
-
-
 class ArmFeeds:
     """One arm's subscriptions and pending gets, every one a channel; :meth:`close` undeclares them."""
 
@@ -143,11 +119,7 @@ class ArmFeeds:
                                zenoh.handlers.FifoChannel(4), payload=b"{}", timeout=_ASK_TIMEOUT)
 
     def close(self) -> None:
-        for sub in self._subs:
-            try:
-                sub.undeclare()
-            except zenoh.ZError:  # the session closed first
-                pass
+        undeclare(self._subs)
 
 
 class ArmView:
@@ -179,12 +151,12 @@ class ArmView:
     def step(self) -> None:
         """Take what came since the last frame and draw it (the page's loop thread only)."""
         f = self.feeds
-        world = _latest(f.world) or self._reply(f.world_reply, "world_reply")
-        if world is not None and (w := _decode(SERVO_WORLD, world)) is not None:
+        world = newest(f.world) or self._reply(f.world_reply, "world_reply")
+        if world is not None and (w := decode(SERVO_WORLD, world)) is not None:
             self._take_world(w)
-        if (s := _latest(f.settings)) is not None:
-            self._pending_settings = _decode(MOTION_SETTINGS, s) or self._pending_settings
-        if (s := _latest(f.state)) is not None:
+        if (s := newest(f.settings)) is not None:
+            self._pending_settings = decode(MOTION_SETTINGS, s) or self._pending_settings
+        if (s := newest(f.state)) is not None:
             self._take_state(s.payload.to_bytes(), s.encoding)
         elif (r := self._reply(f.state_reply, "state_reply")) is not None and r.ok is not None:
             try:
@@ -193,27 +165,27 @@ class ArmView:
                     self.state = format_state(body["state"])
             except JaraArmError:
                 pass
-        if (s := _latest(f.alarms)) is not None and (lst := _decode(ALARM_LIST, s)) is not None:
+        if (s := newest(f.alarms)) is not None and (lst := decode(ALARM_LIST, s)) is not None:
             self._alarm_list = lst
             self.alarms = lst.alarms
         while (s := f.events.try_recv()) is not None:
-            if (event := _decode(ALARM_EVENT, s)) is not None:
+            if (event := decode(ALARM_EVENT, s)) is not None:
                 self.last_event = f"{event.event} {format_code(event.alarm.code)} {event.alarm.description}"
         while (s := f.paths.try_recv()) is not None:
-            if (path := _decode(PLANNED_PATH, s)) is not None:
+            if (path := decode(PLANNED_PATH, s)) is not None:
                 self._paths[path.motion] = (path.op, path.points)
                 for old in sorted(self._paths)[:-_PATHS]:
                     del self._paths[old]
-        if (s := _latest(f.progress)) is not None and (progress := _decode(PLANNER_PROGRESS, s)) is not None:
+        if (s := newest(f.progress)) is not None and (progress := decode(PLANNER_PROGRESS, s)) is not None:
             self.running = progress.running
-        feedback = _latest(f.feedback)
+        feedback = newest(f.feedback)
         scene = self.scene
         if scene is None:
             return
         if self._pending_settings is not None:
             scene.show_settings(self._pending_settings)
             self._pending_settings = None
-        if feedback is not None and (fb := _decode(SERVO_STATUS, feedback)) is not None and fb.pos:
+        if feedback is not None and (fb := decode(SERVO_STATUS, feedback)) is not None and fb.pos:
             try:
                 scene.show_joints(fb.pos)
                 self.frames += 1

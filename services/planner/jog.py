@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from jara_arm.kinematics import Kinematics
-from jara_arm.robots import Obstacle, RobotModel
+from jara_arm.robots import Family, Obstacle, RobotModel
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.motion import TrajectoryRefusal
@@ -275,16 +275,30 @@ class Jogger:
                                   f"({bound}): jog the other way")
             return JointPath(q0, i, cmd.sign), Track(self.dt, room, ProfileLimits.from_accel_time(
                 top, s.accelTimeJoint))
-        rule = families.rule(self.model, families.CartesianKind.LINEAR)
-        if isinstance(rule, families.Refused) or not all(rule.mask) \
-                or rule.orientation is not families.Orientation.FULL:
-            why = rule.why if isinstance(rule, families.Refused) else (
-                f"a {self.model.axis_num}-axis {self.model.family.value} arm cannot hold all six components "
-                "of the pose (a Cartesian jog keeps the five it does not move)")
-            raise PlanRefused(ReturnCode.NG, f"{cmd.op} refused: {why}")
+        mask = self._mask(cmd, checks, q0)
         path = CartesianPath(checks, Frames.of(s), q0, cmd.frame, cmd.axis, cmd.sign, checks.vmax(s), self.dt,
-                             s.accelTimeJoint)
+                             s.accelTimeJoint, mask)
+        moved = np.concatenate([path.direction, np.zeros(3)] if not path.rotation else [np.zeros(3), path.direction])
+        if np.abs(moved[~mask]).max(initial=0.0) > 1e-6:
+            held = ", ".join(n for n, m in zip(JOG_AXES, mask) if m)
+            raise PlanRefused(ReturnCode.NG, f"{cmd.op} refused: a {self.model.axis_num}-axis "
+                              f"{self.model.family.value} arm moves {held} only; {cmd.frame} "
+                              f"{JOG_AXES[cmd.axis]} is not among them here")
         return path, Track(self.dt, CARTESIAN_REACH, ProfileLimits.from_accel_time(top, s.accelTimeCartesian))
+
+    def _mask(self, cmd: JogCommand, checks: Checks, q0: Joints) -> NDArray[np.bool_]:
+        """The pose components a Cartesian jog holds (x .. rz, arm base frame); raises PlanRefused (NG)."""
+        rule = families.rule(self.model, families.CartesianKind.LINEAR)
+        if isinstance(rule, families.CartesianRule) and all(rule.mask) \
+                and rule.orientation is families.Orientation.FULL:
+            return np.ones(6, dtype=bool)  # 6 and 7 axes: the whole pose
+        if self.model.family is Family.ARTICULATED:
+            raise PlanRefused(ReturnCode.NG, f"{cmd.op} refused: a {self.model.axis_num}-axis arm cannot hold "
+                              "the five components of the pose a Cartesian jog does not move")
+        # A SCARA or a gantry moves a fixed set of the pose's components whatever its joints: the rows of its
+        # Jacobian that are not zero (a SCARA never tilts its tool, a gantry never turns it).
+        J = checks.kin.jacobian(q0[:checks.n])
+        return np.abs(J).max(axis=1) > 1e-9
 
     def _begin(self, cmd: JogCommand, s: MotionSettings, q0: Joints, epoch: int) -> _Jog:
         path, track = self._path(cmd, s, q0)

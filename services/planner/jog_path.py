@@ -131,14 +131,17 @@ class CartesianPath:
     one axis; each sample's joints come from the sample before by one damped least squares step."""
 
     def __init__(self, checks: Checks, fk_frames: Frames, q0: Joints, frame: str, axis: int, sign: float,
-                 vmax: Joints, dt: float, accel_time: float) -> None:
+                 vmax: Joints, dt: float, accel_time: float, mask: NDArray[np.bool_] | None = None) -> None:
         """``frame`` "base" or "tool", ``axis`` 0..5 (x, y, z, rx, ry, rz), ``sign`` ±1: the jog;
-        ``vmax`` [rad/s or m/s]: the joints' speeds; ``accel_time`` [s]: rest to ``vmax`` (the settings')."""
+        ``vmax`` [rad/s or m/s]: the joints' speeds; ``accel_time`` [s]: rest to ``vmax`` (the settings');
+        ``mask``: the pose components (x .. rz, arm base frame) the arm holds, all six if None (a SCARA
+        moves x, y, z and rz, a gantry its axes: the others it cannot change, nor hold)."""
         kin = checks.kin
         self.kin, self.n, self.tool, self.dt = kin, checks.n, fk_frames.tool, dt
         self.vmax = vmax[:self.n]
         self.amax = self.vmax / accel_time  # [rad/s² or m/s²]
         self._dq = np.zeros(self.n)  # the step before [rad or m]
+        self.mask = np.ones(6, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
         x0 = kin.control_point(q0[:self.n], self.tool)  # the arm frame, where kinematics works
         unit = np.zeros(3)
         unit[axis % 3] = sign
@@ -156,11 +159,11 @@ class CartesianPath:
         return pin.SE3(self.x0.rotation, self.x0.translation + self.direction * s)
 
     def _solve(self, q: Joints, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
-        J = self.kin.jacobian(q[:self.n], self.tool)
+        J = self.kin.jacobian(q[:self.n], self.tool)[self.mask]
         JJt = J @ J.T
         w = math.sqrt(max(0.0, float(np.linalg.det(JJt))))
         damping = DAMPING ** 2 * (1.0 - (w / MANIPULABILITY) ** 2) if w < MANIPULABILITY else 0.0
-        return J.T @ np.linalg.solve(JJt + damping * np.eye(6), rhs)
+        return J.T @ np.linalg.solve(JJt + damping * np.eye(len(J)), rhs[self.mask])
 
     def at(self, q: Joints, s: float) -> Joints:
         target = self.pose(s)
