@@ -98,6 +98,7 @@ def main() -> int:
         with zenoh.open(conf) as session, Arm(session, "arm0") as arm:
             arm.wait_alive()
             arm.servoON()
+            arm.setSpeedJoint(50)
             states = Stream(session, key("arm0/joint_states", "sensor_msgs/msg/JointState"))
             health = LateCycles(session, ArmKeys("arm0"))
             deadline = time.monotonic() + 30

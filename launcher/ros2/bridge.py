@@ -86,9 +86,14 @@ class _Topic:
             self._pub = session.declare_publisher(self.key, congestion_control=zenoh.CongestionControl.DROP)
         self._token = session.liveliness().declare_token(token)
 
-    def put(self, message: Any) -> None:
-        self._pub.put(msgs.cdr(message, self.ros_type),
-                      attachment=rmw.attachment(next(self._seq), time.time_ns(), self.gid))
+    def put(self, message: Any) -> bytes:
+        """Publish ``message``; its CDR, for :meth:`put_cdr` to publish again."""
+        data = msgs.cdr(message, self.ros_type)
+        self.put_cdr(data)
+        return data
+
+    def put_cdr(self, data: bytes) -> None:
+        self._pub.put(data, attachment=rmw.attachment(next(self._seq), time.time_ns(), self.gid))
 
     def close(self) -> None:
         undeclare((self._token, self._pub))
@@ -114,6 +119,7 @@ class ArmBridge:
         self._topics: dict[str, _Topic] = {}
         self._node_token: Any = None
         self._last: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None  # tm [s], pos, vel
+        self._sent: tuple[float, bytes, bytes] | None = None  # tm [s], joint_states and tf as sent (CDR)
         self._state = 0
         self._alarms: tuple[Any, ...] = ()
         self._said: tuple[int, tuple[int, ...]] | None = None
@@ -159,7 +165,7 @@ class ArmBridge:
         for k, (name, ros_type, qos) in enumerate(specs, 1):
             self._topics[name] = _Topic(self._session, node, self.nid + k, f"{ns}/{name}", ros_type, qos)
         self._topics["robot_description"].put(msgs.description(self._desc))
-        self._said = None
+        self._said, self._sent = None, None
         log.info("arm %s (%s): ROS 2 node %s/%s, domain %d", self.arm, self.robot, ns, NODE_NAME, s.domain)
 
     # -- each period ---------------------------------------------------------------------------
@@ -184,8 +190,12 @@ class ArmBridge:
         if self._desc is None or self._kin is None or self._last is None:
             return
         t, q, v = self._last
-        self._topics["joint_states"].put(msgs.joint_state(self._desc, t, q, v))
-        self._topics["tf"].put(msgs.tf_message(self._kin, t, q))
+        if self._sent is not None and self._sent[0] == t:  # the same status (at rest it comes at 10 Hz): as sent
+            self._topics["joint_states"].put_cdr(self._sent[1])
+            self._topics["tf"].put_cdr(self._sent[2])
+        else:
+            self._sent = (t, self._topics["joint_states"].put(msgs.joint_state(self._desc, t, q, v)),
+                          self._topics["tf"].put(msgs.tf_message(self._kin, t, q)))
         said = (self._state, tuple(a.code for a in self._alarms))
         if said != self._said or now - self._said_at >= STATE_EVERY:
             self._topics["jara_arm/state"].put(msgs.arm_state(self.arm, self.robot, self._state, self._alarms))
