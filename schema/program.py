@@ -347,6 +347,7 @@ def teach(path: str | os.PathLike[str], name: str, joints: Sequence[float], pose
     p = Path(path)
     yaml = YAML()
     yaml.indent(mapping=2, sequence=4, offset=2)  # "  - step" under "steps:", as people write it
+    yaml.width = 4096  # a point's joints, and its pose, on one line each
     doc = yaml.load(p.read_text(encoding="utf-8")) if p.exists() else None
     if doc is None:
         doc = CommentedMap()
@@ -356,9 +357,9 @@ def teach(path: str | os.PathLike[str], name: str, joints: Sequence[float], pose
     if not isinstance(points, CommentedMap):
         points = doc["points"] = CommentedMap()
     body = CommentedMap()
-    body["joints"] = _flow([round(float(q), 9) for q in joints])
-    body["pose"] = _flow([_flow([round(float(v), 9) for v in row]) for row in pose])
-    body["elbow"] = round(float(elbow), 9)
+    body["joints"] = _flow([round(float(q), 9) + 0.0 for q in joints])  # + 0.0: no "-0.0" in the file
+    body["pose"] = _flow([_flow([round(float(v), 9) + 0.0 for v in row]) for row in pose])
+    body["elbow"] = round(float(elbow), 9) + 0.0
     body["posture"] = int(posture)
     points[name] = body
     if "steps" not in doc:

@@ -17,8 +17,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+import zenoh
 
+from jara_arm.schema import codec
+from jara_arm.schema.codec import Encoding
 from jara_arm.schema.codes import ReturnCode, StateBit
+from jara_arm.schema.messages import CALL_TRACE
+from jara_arm.schema.operations import OP
 from jara_arm.schema.keys import Service
 
 from .harness import LiveArm, launched, listening
@@ -154,10 +159,22 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
         assert time.monotonic() - hidden < LEASE + BRAKING + 0.2
         b._call("Runtime.evaluate", expression="delete document.hidden")
         mouse(b, "mouseReleased", x, y)
-        # Held, then the tab closed: the calls stop, the lease lapses.
+        # Held, then the tab closed: the calls stop, the lease lapses. Every jog call the command answers is traced
+        # (``trace/Ext/jogJoint``, while someone subscribes): the last one is the page's last renewal.
+        calls = arm.session.declare_subscriber(arm.keys.trace("Ext", OP.jogJoint), zenoh.handlers.FifoChannel(4096))
+        traces: list[Any] = []
+
+        def traced() -> bool:
+            while (sample := calls.try_recv()) is not None:
+                traces.append(codec.decode_message(CALL_TRACE, sample.payload.to_bytes(),
+                                                   Encoding.of(sample.encoding)))
+            return bool(traces)
+
         q1 = arm.joints()[0]
         mouse(b, "mousePressed", x, y)
         wait_until(lambda: arm.joints()[0] > q1 + 0.02, 10.0, what="J1 moving again")
+        wait_until(traced, 10.0, what="the page's renewals traced")
+
         def close_tab() -> None:
             try:
                 b._call("Page.close")
@@ -169,10 +186,18 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
         closing.start()
         wait_until(lambda: not arm.state() & StateBit.MOVING, 5.0, 0.01, "the arm at rest after the tab closed")
         stopped = time.monotonic() - closed
+        at_rest = time.time()
         # A bound that says it stops, not how fast: headless Chromium beside busy loops went on renewing for up to
         # 0.9 s after the close was asked (the page is torn down, and its worker with it, only then).
         assert stopped < 3.0, f"at rest {stopped:.3f} s after the tab closed"
-        print(f"pendant in Chromium: at rest {stopped * 1e3:.0f} ms after the tab closed while holding J1 +")
+        # Within the lease of the last renewal the page made, and the 50 ms the jog's stop may take after it (and
+        # up to 50 ms more for the state bit, which the command clears from the servo's status, to say it).
+        traced()
+        calls.undeclare()
+        after_last = at_rest - max(t.t for t in traces)
+        assert after_last < LEASE + 0.05 + 0.05, f"at rest {after_last * 1e3:.0f} ms after the page's last renewal"
+        print(f"pendant in Chromium: at rest {stopped * 1e3:.0f} ms after the tab closed while holding J1 +, "
+              f"{after_last * 1e3:.0f} ms after its last renewal (lease {LEASE * 1e3:.0f} ms)")
         assert not arm.state() & StateBit.ALARM, arm.explain()
     finally:
         b.close()

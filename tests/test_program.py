@@ -245,3 +245,19 @@ def moving(arm: LiveArm) -> bool:
     a = arm.joints()[0]
     time.sleep(0.05)
     return abs(arm.joints()[0] - a) > 1e-5
+
+
+def test_live_check_finds_a_step_that_would_run_at_a_speed_ratio_of_0(arm: LiveArm, tmp_path: Path) -> None:
+    """A fresh arm's speed ratios may be 0 %: a lin with no speed of its own, after no step that set the Cartesian
+    one, would be refused by the arm; check says so at its line, and a step's speed mends it for those after."""
+    here = [float(x) for x in arm.joints()[:arm.model.axis_num]]
+    pose = arm.pose()[:3].tolist()
+    path = tmp_path / "slow.yaml"
+    path.write_text(f"points:\n  here: {{joints: {here}, pose: {pose}}}\n"
+                    "steps:\n  - ptp: here\n    speed: 20\n  - lin: here\n  - lin: here\n    speed: 10\n"
+                    "  - lin: here\n")
+    assert arm.client.middle(OP.setSpeedCartesian, {"spdRatio": 0}).ok
+    check = program_cli(arm, "check", str(path))
+    assert check.popen.returncode == 1, check.output
+    assert f"{path.name}:6:10: lin here: the arm's speed ratio is 0 %" in check.output, check.output
+    assert ":7:" not in check.output and ":9:" not in check.output and "1 mistake(s)" in check.output, check.output

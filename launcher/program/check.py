@@ -118,14 +118,27 @@ def check(program: Program, arm: Arm, cycles: int = 1) -> list[Mistake]:
     start = np.array(arm.getFeedbackPosJoint(), dtype=float)
     mistakes: list[Mistake] = []
     seen: set[tuple[int, int]] = set()
+    # The speed ratios the run will have at each step: the arm's, as each step's ``speed`` sets them (run.py).
+    joint, cartesian = settings.spdRatioJoint, settings.spdRatioCartesian
     for step in program.flat(cycles):
         if step.kind == "wait":
             continue
+        if step.speed is not None:
+            joint, cartesian = (step.speed, cartesian) if step.kind == "ptp" else (joint, step.speed)
         motion = motion_of(program, step)
         if isinstance(motion, Mistake):
             mistakes.append(motion)
             continue
-        s = dataclasses.replace(settings, spdRatioJoint=step.speed or 100, spdRatioCartesian=step.speed or 100)
+        ratio = joint if step.kind == "ptp" else cartesian
+        if ratio <= 0.0:
+            key = (step.where.line, step.where.column)
+            if key not in seen:
+                seen.add(key)
+                which = "setSpeedJoint" if step.kind == "ptp" else "setSpeedCartesian"
+                mistakes.append(Mistake(step.where, f"{step.describe()}: the arm's speed ratio is 0 % when it runs "
+                                        f"({which}): give it a speed"))
+            continue
+        s = dataclasses.replace(settings, spdRatioJoint=joint, spdRatioCartesian=cartesian)
         try:
             req = PlanRequest.decode(MotionRequest(motion.op, encode_args(MIDDLE[motion.op], motion.args), s))
             planned = planner.plan(req, start, None, preview=False)
