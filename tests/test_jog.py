@@ -352,11 +352,11 @@ def test_live_a_scara_and_a_gantry_jog_along_the_axes_they_have_and_refuse_the_o
             after = arm.pose()
             moved = after[:3, 3] - before[:3, 3]
             assert moved[0] > 0.01 and np.abs(moved[1:]).max() < 1e-3, f"{robot}: moved {moved}"
-            turned = np.linalg.norm(after[:3, :3] - before[:3, :3])
-            assert turned < 1e-3, f"{robot}: the tool turned by {turned}"
+            turned = float(np.arccos(np.clip((np.trace(before[:3, :3].T @ after[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+            assert turned < 1e-3, f"{robot}: the tool turned by {turned:.2e} rad"
             reply = arm.client.ext(OP.jogCartesian, {"frame": "base", "axis": refused, "speedRatio": 20.0,
                                                      "leaseMs": 300})
             assert reply.id == ReturnCode.NG and "only" in reply.comment, reply
             assert not arm.state() & (StateBit.ALARM | StateBit.MOVING), arm.explain()
             print(f"{robot}: base x jog moved {moved[0] * 1e3:.1f} mm, off the line "
-                  f"{np.abs(moved[1:]).max() * 1e3:.3f} mm; {refused}: {reply.comment}")
+                  f"{np.abs(moved[1:]).max() * 1e3:.3f} mm, turned {turned * 1e3:.2f} mrad; {refused}: {reply.comment}")

@@ -54,6 +54,9 @@ NODE_NAME = "jara_arm"
 STATE_EVERY = 1.0
 #: The servo's world is asked again this often until it answers [s].
 ASK_EVERY = 1.0
+#: joint_states and tf stop when no servo status came for this long [s]: the servo says one at least every
+#: 0.1 s (10 Hz at rest); a servo gone or frozen is not an arm at rest.
+STALE = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,6 +123,7 @@ class ArmBridge:
         self._node_token: Any = None
         self._last: tuple[float, tuple[float, ...], tuple[float, ...]] | None = None  # tm [s], pos, vel
         self._sent: tuple[float, bytes, bytes] | None = None  # tm [s], joint_states and tf as sent (CDR)
+        self._heard = 0.0  # [monotonic s] when the last status came
         self._state = 0
         self._alarms: tuple[Any, ...] = ()
         self._said: tuple[int, tuple[int, ...]] | None = None
@@ -176,6 +180,7 @@ class ArmBridge:
             st = decode(SERVO_STATUS, status)
             if st is not None and st.pos:
                 self._last = (st.tm.to_seconds(), tuple(st.pos), tuple(st.vel))
+                self._heard = now
         state = newest(self._state_sub)
         if state is not None:
             try:
@@ -187,15 +192,16 @@ class ArmBridge:
             book = decode(ALARM_LIST, alarms)
             if book is not None:
                 self._alarms = tuple(book.alarms)
-        if self._desc is None or self._kin is None or self._last is None:
+        if self._desc is None or self._kin is None:
             return
-        t, q, v = self._last
-        if self._sent is not None and self._sent[0] == t:  # the same status (at rest it comes at 10 Hz): as sent
-            self._topics["joint_states"].put_cdr(self._sent[1])
-            self._topics["tf"].put_cdr(self._sent[2])
-        else:
-            self._sent = (t, self._topics["joint_states"].put(msgs.joint_state(self._desc, t, q, v)),
-                          self._topics["tf"].put(msgs.tf_message(self._kin, t, q)))
+        if self._last is not None and now - self._heard <= STALE:  # a stale pose repeated would look alive
+            t, q, v = self._last
+            if self._sent is not None and self._sent[0] == t:  # the same status (10 Hz at rest): as sent
+                self._topics["joint_states"].put_cdr(self._sent[1])
+                self._topics["tf"].put_cdr(self._sent[2])
+            else:
+                self._sent = (t, self._topics["joint_states"].put(msgs.joint_state(self._desc, t, q, v)),
+                              self._topics["tf"].put(msgs.tf_message(self._kin, t, q)))
         said = (self._state, tuple(a.code for a in self._alarms))
         if said != self._said or now - self._said_at >= STATE_EVERY:
             self._topics["jara_arm/state"].put(msgs.arm_state(self.arm, self.robot, self._state, self._alarms))

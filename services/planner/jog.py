@@ -63,6 +63,10 @@ log = logging.getLogger(__name__)
 TICK = 0.01
 #: Path kept buffered ahead of the servo before the stop [s of planned time], for a long lease.
 HORIZON = 0.3
+#: A jog's first samples [s of planned time]; the jog thread adds the rest of HORIZON within a tick or two.
+#: Planning 0.3 s of a Cartesian jog took 0.2 s beside two busy loops: its lease had nearly run out before the
+#: reply left.
+START = 0.1
 #: The stop the servo holds ends this long after the lease [s]: the issue's bound is 50 ms; the other 30 ms
 #: are for the renewal's way to this process (the lease runs from its arrival) and a late servo cycle.
 GRACE = 0.02
@@ -169,6 +173,9 @@ class Jogger:
         #: The last jog that stopped by itself before a limit, why, and its motion: renewals of it while that
         #: motion still brakes are refused naming the limit.
         self._ended: tuple[JogCommand, str, int] | None = None
+        #: The last jog whose lease lapsed, its motion and when [monotonic s]: a late renewal of it while it
+        #: stops is told so.
+        self._lapsed: tuple[JogCommand, int, float] | None = None
         self._loop = LoopThread(self._run, "planner-jog")
 
     # ------------------------------------------------------------------ life cycle
@@ -214,9 +221,13 @@ class Jogger:
                 jog.cmd, jog.lease_until = cmd, now + cmd.lease
                 jog.speed = self._speed(cmd, jog.settings, jog.track.limits)
                 return ReturnCode.OK, f"OK: jogging {self._describe(jog)}"
-            ended = self._ended
+            ended, lapsed = self._ended, self._lapsed
             if ended is not None and ended[0].same_jog(cmd) and ended[2] in self.handover.progress().queued:
                 raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: stopping before the limit: {ended[1]}")
+            if lapsed is not None and lapsed[0].same_jog(cmd) and lapsed[1] in self.handover.progress().queued:
+                raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: the lease of jog {cmd.describe()} "
+                                  f"lapsed {(time.monotonic() - lapsed[2]) * 1e3:.0f} ms ago: it stops on its "
+                                  "path; call again once it holds")
             checks, _, _ = self._kit()
             try:
                 checks.settings(settings)
@@ -305,13 +316,17 @@ class Jogger:
         now = time.monotonic()
         jog = _Jog(cmd, s, path, track, self._speed(cmd, s, track.limits), 0, epoch, q0.copy(), 0, 0, q0.copy(),
                    now + cmd.lease)
-        rows, moved, ended = self._extend(jog, int(round(HORIZON / self.dt)), (cmd.lease + GRACE) / self.dt)
+        rows, moved, ended = self._extend(jog, int(round(START / self.dt)), (cmd.lease + GRACE) / self.dt)
         if ended and np.abs(rows[-1] - q0).max() < CREEP:  # at the limit already: nothing left to jog
             raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: {ended}")
         head = np.vstack([q0[None, :], rows])
         jog.motion, reply = self.handover.jog_start(head, epoch, final=bool(ended))
+        handed = time.monotonic()
         jog.cruise_end, jog.end, jog.q_last = moved, len(head) - 1, head[-1].copy()
-        jog.stop_by, jog.pos, jog.pos_at = jog.lease_until + GRACE, 0.0, now
+        # The lease runs from the reply, as a renewal's does; the head stops by what it was planned for (earlier):
+        # the first tick replans it.
+        jog.lease_until, jog.stop_by = handed + cmd.lease, now + cmd.lease + GRACE
+        jog.pos, jog.pos_at = 0.0, handed
         jog.ended = ended
         return jog
 
@@ -456,6 +471,7 @@ class Jogger:
                 return
             # Lapsed: the servo holds the stop, at rest by the lease's end plus GRACE; no more after it.
             self._jog = None
+            self._lapsed = (jog.cmd, jog.motion, jog.lease_until)
         reply = self.handover.jog_extend(jog.motion, jog.epoch, jog.q_last[None, :], final=True)
         silent = (now - jog.lease_until + jog.cmd.lease) * 1e3
         log.info("jog %s: the lease lapsed (%.0f ms without a renewal): stopping on its path%s", jog.cmd.describe(),
@@ -511,4 +527,4 @@ class Jogger:
             log.info("jog %s: stopping before the limit: %s", jog.cmd.describe(), ended)
 
 
-__all__ = ["GRACE", "HORIZON", "JogCommand", "Jogger", "LEAD", "TICK"]
+__all__ = ["GRACE", "HORIZON", "JogCommand", "Jogger", "LEAD", "START", "TICK"]
