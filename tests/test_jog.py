@@ -347,7 +347,7 @@ def test_live_a_scara_and_a_gantry_jog_along_the_axes_they_have_and_refuse_the_o
             arm.client.wait_alive((Service.SERVO, Service.PLANNER, Service.COMMAND))
             arm.reset()
             before = arm.pose()
-            hold(arm, OP.jogCartesian, {"frame": "base", "axis": "x", "speedRatio": 20.0, "leaseMs": 300}, 0.6)
+            hold(arm, OP.jogCartesian, {"frame": "base", "axis": "x", "speedRatio": 20.0, "leaseMs": 600}, 0.6)
             arm.wait_rest()
             after = arm.pose()
             moved = after[:3, 3] - before[:3, 3]
