@@ -122,7 +122,6 @@ class Ros2Bag:
         try:
             reply = arm.asked.try_recv()
         except zenoh.ZError:  # the get ended without an answer
-            reply = None
             arm.asked = None
             log.warning("ROS 2 bag: arm %s did not say its robot: no robot_description, joint_states or tf "
                         "until its world is published", arm_id)
