@@ -2,7 +2,7 @@
 
 A module that implements a command says so with a :class:`Command` (its name,
 help texts, the function that adds its arguments, the function that runs it);
-``cli.COMMANDS`` lists them. A run gets the command's own parser, so that its
+``cli.COMMANDS`` says where each lives. A run gets the command's own parser, so that its
 messages start with ``parser.prog`` (``jara-arm NAME``) as argparse's do.
 """
 

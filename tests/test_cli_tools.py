@@ -70,6 +70,20 @@ def test_the_tools_parse_their_arguments() -> None:
     assert cli.command_parser(["echo", "state"])[0].prog.endswith("echo")
 
 
+def test_the_command_table_says_where_each_command_lives() -> None:
+    assert [cli.command(name).name for name in cli.COMMANDS] == list(cli.COMMANDS)
+
+
+def test_a_command_line_imports_only_its_own_command() -> None:
+    """The gateway, the router and the client tools start without the rest of the launcher."""
+    code = ("import sys; from jara_arm.launcher import cli; cli.main(['call', '--help']); "
+            "print(sorted(m for m in sys.modules if m.startswith('jara_arm.launcher.') and '.tools' not in m))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    imported = done.stdout.splitlines()[-1]
+    for other in ("view", "pendant", "record", "secure.certs", "ros2", "program", "up.up"):
+        assert f"jara_arm.launcher.{other}" not in imported, imported
+
+
 @pytest.mark.parametrize("argv, message", [
     (["wait", "sleepy"], "invalid choice: 'sleepy'"),
     (["wait", "idle", "--timeout", "-1"], "expected a positive number"),

@@ -28,11 +28,9 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import threading
 import time
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,7 +40,7 @@ from jara_arm.robots import Family, Obstacle, RobotModel
 from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import WireError
 from jara_arm.schema.motion import TrajectoryRefusal
-from jara_arm.schema.operations import JOG_AXES, JOG_FRAMES, JOG_LEASE_MS, OP
+from jara_arm.schema.operations import JOG_AXES, OP
 from jara_arm.schema.planner import ControlAction, MotionSettings
 from jara_arm.services.runtime.threads import LoopThread
 
@@ -52,6 +50,7 @@ from .collision import DEFAULT_MARGIN, PathChecker
 from .frames import Frames
 from .handover import Handover
 from .jog_path import CartesianPath, JointPath, Track, speed_to_stop_within
+from .jog_request import JogCommand
 from .profile import ProfileLimits
 from .request import PlanRefused
 from .sampling import BatchFk
@@ -84,54 +83,6 @@ JOINT_SPEED_SHARE = 0.9
 #: A Cartesian jog along a straight line (or about an axis) goes at most this far [m or rad] in one go: the
 #: profile's target, far enough never to be reached while jogging by hand.
 CARTESIAN_REACH = 10.0
-
-
-@dataclasses.dataclass(frozen=True)
-class JogCommand:
-    """One jog call, decoded once (:meth:`decode`)."""
-
-    op: str  # OP.jogJoint or OP.jogCartesian
-    joint: int  # jogJoint: the joint's index (0 = J1); -1 for a Cartesian jog
-    frame: str  # jogCartesian: "base" or "tool"; "" for a joint jog
-    axis: int  # jogCartesian: 0..5 = x, y, z, rx, ry, rz; -1 for a joint jog
-    sign: float  # +1 or -1: the direction
-    ratio: float  # (0, 1]: the share of the max speed
-    lease: float  # [s]
-
-    @classmethod
-    def decode(cls, op: str, args: Mapping[str, Any], axis_num: int) -> JogCommand:
-        """The jog ``args`` of ``op`` ask for; raises WireError naming the field."""
-        ratio = float(args["speedRatio"])
-        if not (math.isfinite(ratio) and 0.0 < abs(ratio) <= 100.0):
-            raise WireError("speedRatio", f"-100 .. 100 %, not 0 (jogStop ends a jog), got {ratio}")
-        lease = int(args["leaseMs"])
-        if not JOG_LEASE_MS[0] <= lease <= JOG_LEASE_MS[1]:
-            raise WireError("leaseMs", f"{JOG_LEASE_MS[0]} .. {JOG_LEASE_MS[1]} ms, got {lease}")
-        sign, share, seconds = math.copysign(1.0, ratio), abs(ratio) / 100.0, lease / 1000.0
-        if op == OP.jogJoint:
-            axis = int(args["axis"])
-            if not 1 <= axis <= axis_num:
-                raise WireError("axis", f"1 .. {axis_num} (J1 .. J{axis_num}), got {axis}")
-            return cls(op, axis - 1, "", -1, sign, share, seconds)
-        if op == OP.jogCartesian:
-            frame, name = str(args["frame"]), str(args["axis"])
-            if frame not in JOG_FRAMES:
-                raise WireError("frame", f"one of {', '.join(JOG_FRAMES)}, got {frame!r}")
-            if name not in JOG_AXES:
-                raise WireError("axis", f"one of {', '.join(JOG_AXES)}, got {name!r}")
-            return cls(op, -1, frame, JOG_AXES.index(name), sign, share, seconds)
-        raise WireError("op", f"not a jog: {op!r}")  # pragma: no cover - the service routes only jogs here
-
-    def same_jog(self, other: JogCommand) -> bool:
-        """Whether ``other`` renews this jog (the same axis and direction; the speed may differ)."""
-        return (self.op, self.joint, self.frame, self.axis, self.sign) == (
-            other.op, other.joint, other.frame, other.axis, other.sign)
-
-    def describe(self) -> str:
-        sign = "+" if self.sign > 0 else "-"
-        if self.joint >= 0:
-            return f"J{self.joint + 1} {sign}"
-        return f"{self.frame} {JOG_AXES[self.axis]} {sign}"
 
 
 @dataclasses.dataclass
@@ -176,6 +127,8 @@ class Jogger:
         #: The last jog whose lease lapsed, its motion and when [monotonic s]: a late renewal of it while it
         #: stops is told so.
         self._lapsed: tuple[JogCommand, int, float] | None = None
+        #: When the newest call arrived, and the newest served [monotonic s]: one between them waits for the lock.
+        self._arrived = self._served = 0.0
         self._loop = LoopThread(self._run, "planner-jog")
 
     # ------------------------------------------------------------------ life cycle
@@ -207,41 +160,52 @@ class Jogger:
             ) -> tuple[ReturnCode, str]:
         """Start ``cmd``, or renew the jog it continues; ``start()`` gives where a new one starts and the
         servo's epoch (raising PlanRefused). Raises PlanRefused."""
+        # A renewal is judged by when it arrived: the jog thread may hold the lock for a long extension (a
+        # Cartesian jog bisecting for the stop before a limit took 0.9 s on a slow VM), and meanwhile it does
+        # not call the lease lapsed (``_tick``).
+        arrival = self._arrived = time.monotonic()
         with self._lock:
-            jog = self._jog
-            if jog is not None:
-                if not jog.cmd.same_jog(cmd):
-                    raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: jogging {jog.cmd.describe()}; "
-                                      f"{OP.jogStop} first (or let its lease lapse)")
-                now = time.monotonic()
-                if now > jog.lease_until:  # lapsed: the jog thread is stopping it, a late call does not revive it
-                    raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: the lease of jog "
-                                      f"{jog.cmd.describe()} lapsed {(now - jog.lease_until) * 1e3:.0f} ms ago: "
-                                      "it brakes; call again once it holds")
-                jog.cmd, jog.lease_until = cmd, now + cmd.lease
-                jog.speed = self._speed(cmd, jog.settings, jog.track.limits)
-                return ReturnCode.OK, f"OK: jogging {self._describe(jog)}"
-            ended, lapsed = self._ended, self._lapsed
-            if ended is not None and ended[0].same_jog(cmd) and ended[2] in self.handover.progress().queued:
-                raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: stopping before the limit: {ended[1]}")
-            if lapsed is not None and lapsed[0].same_jog(cmd) and lapsed[1] in self.handover.progress().queued:
-                raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: the lease of jog {cmd.describe()} "
-                                  f"lapsed {(time.monotonic() - lapsed[2]) * 1e3:.0f} ms ago: it stops on its "
-                                  "path; call again once it holds")
-            checks, _, _ = self._kit()
             try:
-                checks.settings(settings)
-            except WireError as exc:
-                raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
-            q0, epoch = start()
-            jog = self._begin(cmd, settings, q0, epoch)
-            if jog.ended:  # the head already stops before a limit: nothing to renew
-                self._ended = (cmd, jog.ended, jog.motion)
-                log.info("jog %s: stopping before the limit: %s", cmd.describe(), jog.ended)
-                return ReturnCode.OK, f"OK: jogging {cmd.describe()}, stopping before the limit: {jog.ended}"
-            self._jog = jog
-            log.info("jog %s started (motion %d, lease %.0f ms)", self._describe(jog), jog.motion, cmd.lease * 1e3)
-            return ReturnCode.OK, f"OK: jogging {self._describe(jog)} (motion {jog.motion})"
+                return self._call(cmd, settings, start, arrival)
+            finally:
+                self._served = max(self._served, arrival)
+
+    def _call(self, cmd: JogCommand, settings: MotionSettings, start: Callable[[], tuple[Joints, int]],
+              arrival: float) -> tuple[ReturnCode, str]:
+        """:meth:`jog`'s work, under the lock, for a call that arrived at ``arrival`` [monotonic s]."""
+        jog = self._jog
+        if jog is not None:
+            if not jog.cmd.same_jog(cmd):
+                raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: jogging {jog.cmd.describe()}; "
+                                  f"{OP.jogStop} first (or let its lease lapse)")
+            if arrival > jog.lease_until:  # lapsed: the jog thread stops it, a late call does not revive it
+                raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: the lease of jog "
+                                  f"{jog.cmd.describe()} lapsed {(arrival - jog.lease_until) * 1e3:.0f} ms "
+                                  "before this call: it brakes; call again once it holds")
+            jog.cmd, jog.lease_until = cmd, time.monotonic() + cmd.lease
+            jog.speed = self._speed(cmd, jog.settings, jog.track.limits)
+            return ReturnCode.OK, f"OK: jogging {self._describe(jog)}"
+        ended, lapsed = self._ended, self._lapsed
+        if ended is not None and ended[0].same_jog(cmd) and ended[2] in self.handover.progress().queued:
+            raise PlanRefused(ReturnCode.VALUE_ERR, f"{cmd.op} refused: stopping before the limit: {ended[1]}")
+        if lapsed is not None and lapsed[0].same_jog(cmd) and lapsed[1] in self.handover.progress().queued:
+            raise PlanRefused(ReturnCode.STATUS_ERR, f"{cmd.op} refused: the lease of jog {cmd.describe()} "
+                              f"lapsed {(time.monotonic() - lapsed[2]) * 1e3:.0f} ms ago: it stops on its "
+                              "path; call again once it holds")
+        checks, _, _ = self._kit()
+        try:
+            checks.settings(settings)
+        except WireError as exc:
+            raise PlanRefused(ReturnCode.VALUE_ERR, str(exc)) from None
+        q0, epoch = start()
+        jog = self._begin(cmd, settings, q0, epoch)
+        if jog.ended:  # the head already stops before a limit: nothing to renew
+            self._ended = (cmd, jog.ended, jog.motion)
+            log.info("jog %s: stopping before the limit: %s", cmd.describe(), jog.ended)
+            return ReturnCode.OK, f"OK: jogging {cmd.describe()}, stopping before the limit: {jog.ended}"
+        self._jog = jog
+        log.info("jog %s started (motion %d, lease %.0f ms)", self._describe(jog), jog.motion, cmd.lease * 1e3)
+        return ReturnCode.OK, f"OK: jogging {self._describe(jog)} (motion {jog.motion})"
 
     def stop(self, why: str) -> str:
         """End the jog now: the servo brakes on its path. What it did, for the reply."""
@@ -469,6 +433,8 @@ class Jogger:
             if now <= jog.lease_until:
                 self._go_on(jog, now)
                 return
+            if jog.lease_until >= self._arrived > self._served:
+                return  # a call that came within the lease waits for the lock: it may renew it
             # Lapsed: the servo holds the stop, at rest by the lease's end plus GRACE; no more after it.
             self._jog = None
             self._lapsed = (jog.cmd, jog.motion, jog.lease_until)

@@ -75,7 +75,8 @@ from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .collision import DEFAULT_MARGIN
 from .handover import Handover
-from .jog import JogCommand, Jogger
+from .jog import Jogger
+from .jog_request import JogCommand
 from .planning import MotionPlanner
 from .request import PlanRefused, PlanRequest
 from .trajectory import Joints
