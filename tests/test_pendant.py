@@ -140,7 +140,8 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
         q0 = arm.joints()[0]
         mouse(b, "mouseMoved", x, y)
         mouse(b, "mousePressed", x, y)
-        wait_until(lambda: arm.joints()[0] > q0 + 0.02, 10.0, what="J1 moving while the button is held")
+        wait_until(lambda: arm.joints()[0] > q0 + 0.02, 10.0, what="J1 moving while the button is held",
+                   explain=lambda: f"the page: {b.text()[-600:]}\n{arm.explain()}")
         time.sleep(0.6)  # held: it goes on (the page renews the lease)
         assert moving(arm, 0, 0.1), f"J1 stopped while the button was held; the page: {b.text()[-600:]}\n{arm.explain()}"
         mouse(b, "mouseReleased", x, y)
@@ -151,7 +152,8 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
         # Held, then the tab hidden (another tab in front, a phone's screen off): released.
         mouse(b, "mousePressed", x, y)
         q2 = arm.joints()[0]
-        wait_until(lambda: arm.joints()[0] > q2 + 0.02, 10.0, what="J1 moving, held")
+        wait_until(lambda: arm.joints()[0] > q2 + 0.02, 10.0, what="J1 moving, held",
+                   explain=lambda: f"the page: {b.text()[-600:]}\n{arm.explain()}")
         b._call("Runtime.evaluate", expression="Object.defineProperty(document, 'hidden', {value: true, "
                 "configurable: true}); document.dispatchEvent(new Event('visibilitychange'))")
         hidden = time.monotonic()
