@@ -127,6 +127,29 @@ def moving(arm: LiveArm, joint: int, within: float) -> bool:
     return abs(arm.joints()[joint] - a) > 1e-4
 
 
+def test_live_a_renewal_of_a_released_hold_moves_nothing(arm: LiveArm, pendant: tuple[LiveArm, str, Path]) -> None:
+    """A renewal in flight at the release reaches the pendant after its jogStop: dropped, or the planner would
+    start a new jog after the button was let go. The next press is a hold of its own and moves."""
+    url = pendant[1]
+    for _ in range(4):
+        assert post(url, "jog", {"axis": 1, "speedRatio": 20, "page": "test", "hold": 7})["id"] == ReturnCode.OK
+        time.sleep(0.1)
+    assert post(url, "jogStop", {"page": "test", "hold": 7})["id"] == ReturnCode.OK
+    arm.wait_rest()
+    q = arm.joints()
+    late = post(url, "jog", {"axis": 1, "speedRatio": 20, "page": "test", "hold": 7})
+    assert late["id"] == ReturnCode.OK and "released" in late["comment"], late
+    assert not arm.state() & StateBit.MOVING
+    time.sleep(0.3)  # a jog it started would be moving by now: nothing may
+    assert np.abs(arm.joints() - q).max() < 1e-6, f"moved from {q} to {arm.joints()}"
+    again = post(url, "jog", {"axis": 1, "speedRatio": 20, "page": "test", "hold": 8})
+    assert again["id"] == ReturnCode.OK and "released" not in again["comment"], again
+    wait_until(lambda: arm.joints()[0] > q[0] + 1e-3, 5.0, what="J1 moving for the next hold",
+               explain=arm.explain)
+    assert post(url, "jogStop", {"page": "test", "hold": 8})["id"] == ReturnCode.OK
+    arm.wait_rest()
+
+
 def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
         arm: LiveArm, pendant: tuple[LiveArm, str, Path], tmp_path: Path) -> None:
     from .test_view import chromium

@@ -9,7 +9,9 @@ The dead-man is end to end: while a jog button is held the page sends a jog ever
 process makes one ``Ext/jog*`` call with a lease of ``LEASE_MS`` for each. Released, a lost connection, a
 hidden tab or a closed one: the calls stop and the lease lapses in the planner (the page also sends
 ``jogStop`` on release, to brake at once). This process holds no lease of its own: a frozen pendant cannot
-keep an arm moving. Every action is a call of the specification's or the extensions' operations through
+keep an arm moving. Each press is a hold of its own (``hold``, a number each page, ``page``, counts up); a
+renewal of a hold already released (sent before the release, arriving after its ``jogStop``) is dropped here,
+or the planner would take it for a new jog and move the arm again after the button was let go. Every action is a call of the specification's or the extensions' operations through
 ``jara_arm.client.Arm``; in a secure cell an observer's page shows everything and each action it tries
 is refused by the router (the page shows the refusal).
 
@@ -50,6 +52,8 @@ log = logging.getLogger(__name__)
 #: renewals may be lost or late before the arm stops. A jog goes no faster than it stops within half its lease
 #: (``services/planner/jog.py``): 500 ms lets it reach full speed at acceleration times up to 0.24 s.
 LEASE_MS = 500
+#: Pages whose released holds are kept (each tab, each reload is a page of its own).
+_PAGES_KEPT = 256
 RENEW_MS = 100
 DEFAULT_PORT = 8090
 
@@ -75,6 +79,10 @@ class Pendant:
         self.program_path = program_path
         self.run = ProgramRun()
         self._lock = threading.Lock()
+        #: The newest hold each page released; a jog and its jogStop are one at a time, so that a renewal in
+        #: flight at the release either comes before the jogStop or is dropped.
+        self._released: dict[str, int] = {}
+        self._jog_lock = threading.Lock()
         self.reload()
 
     def reload(self) -> None:
@@ -127,6 +135,21 @@ class Pendant:
         return {"id": reply.id, "comment": reply.comment}
 
     def _jog(self, body: dict[str, Any]) -> dict[str, Any]:
+        page, hold = str(body.get("page", "")), int(body.get("hold", 0))
+        with self._jog_lock:
+            if hold and hold <= self._released.get(page, 0):
+                return {"id": int(ReturnCode.OK), "comment": f"OK: ignored: hold {hold} was released"}
+            return self._jog_call(body)
+
+    def _jog_stop(self, body: dict[str, Any]) -> dict[str, Any]:
+        page, hold = str(body.get("page", "")), int(body.get("hold", 0))
+        with self._jog_lock:
+            if len(self._released) >= _PAGES_KEPT and page not in self._released:
+                self._released.pop(next(iter(self._released)))  # the oldest page's: long closed
+            self._released[page] = max(self._released.get(page, 0), hold)
+            return self._call(Interface.EXT, OP.jogStop)
+
+    def _jog_call(self, body: dict[str, Any]) -> dict[str, Any]:
         ratio = float(body["speedRatio"])
         if body.get("frame"):
             if body["axis"] not in JOG_AXES:
@@ -183,7 +206,7 @@ class Pendant:
 
     _ACTIONS: dict[str, Callable[[Pendant, dict[str, Any]], dict[str, Any]]] = {
         "jog": _jog,
-        "jogStop": lambda self, b: self._call(Interface.EXT, OP.jogStop),
+        "jogStop": _jog_stop,
         "servoON": lambda self, b: self._call(Interface.COMMON, OP.servoON),
         "servoOFF": lambda self, b: self._call(Interface.COMMON, OP.servoOFF),
         "clearAlarms": lambda self, b: self._call(Interface.COMMON, OP.clearAlarms),

@@ -302,7 +302,8 @@ class Jogger:
         it does not). The samples are checked with their stop; where they fail, the longest of their first
         samples that still passes, then its stop, and why."""
         before_q, before_s, before_p = jog.q_end.copy(), jog.track.state, jog.path.state()
-        chunk, why = self._try(jog, count, budget)
+        states: list[tuple[tuple[float, float, float], object]] = []
+        chunk, why = self._try(jog, count, budget, states)
         if not why:
             if len(chunk):
                 jog.q_end = chunk[-1]
@@ -312,18 +313,21 @@ class Jogger:
             return self._with_stop(jog, chunk), len(chunk), why
         # A limit ahead: bisect for the last sample from which the arm still stops in time (the samples before
         # the one that fails are checked in order: a limit comes nearer along the jog). The stop from where
-        # the servo holds was checked with the extension before, so none passing still has one.
+        # the servo holds was checked with the extension before, so none passing still has one. A try of the
+        # first ``mid`` samples is ``chunk[:mid]`` from the state after them: only its checks are done again
+        # (replanning each try's samples, a Cartesian jog's IK, held the jogger 0.9 s on a slow VM).
+        checks, collisions, fk = self._kit()
         good, bad = 0, len(chunk)
         best: tuple[NDArray[np.float64], tuple[float, float, float], object] | None = None
         while bad - good > 1:
             mid = (good + bad) // 2
-            jog.track.restore(before_s)
-            jog.path.restore(before_p)
-            trial, failed = self._try(jog, mid, budget)
-            if failed:
+            track_state, path_state = states[mid - 1]
+            jog.track.restore(track_state)
+            jog.path.restore(path_state)
+            if self._check(jog, chunk[:mid], checks, collisions, fk):
                 bad = mid
             else:
-                good, best = mid, (trial, jog.track.state, jog.path.state())
+                good, best = mid, (chunk[:mid], track_state, path_state)
         jog.track.restore(best[1] if best is not None else before_s)
         jog.path.restore(best[2] if best is not None else before_p)
         kept = best[0] if best is not None else chunk[:0]
@@ -340,9 +344,11 @@ class Jogger:
         rows = np.vstack(parts) if parts else jog.q_end[None, :]
         return np.vstack([rows, rows[-1:]])
 
-    def _try(self, jog: _Jog, count: int, budget: float) -> tuple[NDArray[np.float64], str]:
+    def _try(self, jog: _Jog, count: int, budget: float,
+             states: list[tuple[tuple[float, float, float], object]]) -> tuple[NDArray[np.float64], str]:
         """Up to ``count`` samples on from ``jog.q_end`` whose stop ends within ``budget`` samples (advancing
-        the track and the path), and why they fail the checks ("" if they do not)."""
+        the track and the path, whose states after each sample go to ``states``), and why they fail the checks
+        ("" if they do not)."""
         checks, collisions, fk = self._kit()
         rows = []
         q = jog.q_end
@@ -355,6 +361,7 @@ class Jogger:
                 break
             q = q_next
             rows.append(q)
+            states.append((jog.track.state, jog.path.state()))
             if jog.track.finished:
                 break
         if not rows:
