@@ -160,9 +160,8 @@ class Jogger:
             ) -> tuple[ReturnCode, str]:
         """Start ``cmd``, or renew the jog it continues; ``start()`` gives where a new one starts and the
         servo's epoch (raising PlanRefused). Raises PlanRefused."""
-        # A renewal is judged by when it arrived: the jog thread may hold the lock for a long extension (a
-        # Cartesian jog bisecting for the stop before a limit took 0.9 s on a slow VM), and meanwhile it does
-        # not call the lease lapsed (``_tick``).
+        # A renewal is judged by when it arrived: the jog thread may hold the lock for a long extension, and it
+        # does not call the lease lapsed while a call waits (``_tick``).
         arrival = self._arrived = time.monotonic()
         with self._lock:
             try:
@@ -314,8 +313,7 @@ class Jogger:
         # A limit ahead: bisect for the last sample from which the arm still stops in time (the samples before
         # the one that fails are checked in order: a limit comes nearer along the jog). The stop from where
         # the servo holds was checked with the extension before, so none passing still has one. A try of the
-        # first ``mid`` samples is ``chunk[:mid]`` from the state after them: only its checks are done again
-        # (replanning each try's samples, a Cartesian jog's IK, held the jogger 0.9 s on a slow VM).
+        # first ``mid`` samples is ``chunk[:mid]`` from the state after them: only its checks are redone.
         checks, collisions, fk = self._kit()
         good, bad = 0, len(chunk)
         best: tuple[NDArray[np.float64], tuple[float, float, float], object] | None = None
@@ -346,9 +344,8 @@ class Jogger:
 
     def _try(self, jog: _Jog, count: int, budget: float,
              states: list[tuple[tuple[float, float, float], object]]) -> tuple[NDArray[np.float64], str]:
-        """Up to ``count`` samples on from ``jog.q_end`` whose stop ends within ``budget`` samples (advancing
-        the track and the path, whose states after each sample go to ``states``), and why they fail the checks
-        ("" if they do not)."""
+        """Up to ``count`` samples on from ``jog.q_end`` whose stop ends within ``budget`` samples (advancing the
+        track and the path; their states after each sample into ``states``), and why they fail the checks or ""."""
         checks, collisions, fk = self._kit()
         rows = []
         q = jog.q_end
@@ -500,4 +497,4 @@ class Jogger:
             log.info("jog %s: stopping before the limit: %s", jog.cmd.describe(), ended)
 
 
-__all__ = ["GRACE", "HORIZON", "JogCommand", "Jogger", "LEAD", "START", "TICK"]
+__all__ = ["GRACE", "HORIZON", "Jogger", "LEAD", "START", "TICK"]
