@@ -48,10 +48,9 @@ readable message and exits with status 2.
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Sequence
-
-import importlib
 
 from .command import Command
 

@@ -9,7 +9,9 @@ subscription (a Zenoh advanced subscriber that detects late publishers).
 
 from __future__ import annotations
 
+import os
 import random
+import signal
 import struct
 import time
 from collections.abc import Iterator
@@ -361,9 +363,6 @@ def test_live_in_a_secure_cell_the_bridge_is_an_observer_and_a_ros_node_reads_it
 def test_live_joint_states_stop_while_no_servo_is_heard(arm: LiveArm, system: tuple[LiveArm, zenoh.Session]) -> None:
     """The servo stopped (SIGSTOP) for 1 s: joint_states stop within 0.5 s (``bridge.STALE``) instead of repeating
     a pose nobody measures, and come back with the servo."""
-    import os
-    import signal
-
     session = system[1]
     states = Collected(session, key_of("arm0/joint_states", JOINT_STATE))
     try:

@@ -11,9 +11,10 @@ hidden tab or a closed one: the calls stop and the lease lapses in the planner (
 ``jogStop`` on release, to brake at once). This process holds no lease of its own: a frozen pendant cannot
 keep an arm moving. Each press is a hold of its own (``hold``, a number each page, ``page``, counts up); a
 renewal of a hold already released (sent before the release, arriving after its ``jogStop``) is dropped here,
-or the planner would take it for a new jog and move the arm again after the button was let go. Every action is a call of the specification's or the extensions' operations through
-``jara_arm.client.Arm``; in a secure cell an observer's page shows everything and each action it tries
-is refused by the router (the page shows the refusal).
+or the planner would take it for a new jog and move the arm again after the button was let go. Every action
+is a call of the specification's or the extensions' operations through ``jara_arm.client.Arm``; in a
+secure cell an observer's page shows everything and each action it tries is refused by the router (the page
+shows the refusal).
 
 HTTP: ``GET /`` the page, ``GET /api/state`` what it shows (JSON), ``POST /api/<action>`` with a JSON body,
 answered ``{"id": .., "comment": ..}`` as RETURN_ID.
@@ -52,10 +53,10 @@ log = logging.getLogger(__name__)
 #: renewals may be lost or late before the arm stops. A jog goes no faster than it stops within half its lease
 #: (``services/planner/jog.py``): 500 ms lets it reach full speed at acceleration times up to 0.24 s.
 LEASE_MS = 500
-#: Pages whose released holds are kept (each tab, each reload is a page of its own).
-_PAGES_KEPT = 256
 RENEW_MS = 100
 DEFAULT_PORT = 8090
+#: Pages whose released holds are kept (each tab, each reload is a page of its own).
+_PAGES_KEPT = 256
 
 
 @dataclasses.dataclass
