@@ -12,9 +12,10 @@ the servo), every renewal and every :data:`TICK`, keeping about :data:`HORIZON` 
 * **``jogStop``**: the servo is told to stop (``MotionAction.STOP``): it brakes on the buffered path at once,
   jerk-limited, and holds; the queue is discarded.
 * **A limit ahead**: every extension is checked before it is handed over *with its stop* (joint soft limits,
-  the Cartesian soft-limit box, the obstacles). An extension that fails is cut to its longest passing
-  beginning and its stop (``final``): the arm stops before the limit, never past it, and the reply to the
-  next renewal names the limit. A joint jog runs to its soft limit exactly (the profile's target is the limit).
+  a Cartesian jog's nearness to a singularity (``jog_path.SINGULAR``), the Cartesian soft-limit box, the
+  obstacles). An extension that fails is cut to its longest passing beginning and its stop (``final``): the
+  arm stops before the limit, never past it, and the reply to the next renewal names the limit. A joint jog
+  runs to its soft limit exactly (the profile's target is the limit).
 
 A jog goes no faster than it can stop within half its lease (plus ``GRACE``, less ``TICK`` and ``LEAD``):
 renewed at least twice per lease, it never begins the stop it holds. Renewed later, within the lease, it
@@ -77,9 +78,6 @@ LIMIT_MARGIN = 1e-6
 #: From rest a jog may creep closer than it stopped from speed (its stop is shorter), and again, each time by
 #: less: below a milliradian (about a millimetre at the tool) it is refused instead.
 CREEP = 1e-3
-#: A Cartesian jog asks each joint for at most this share of its max speed: the rest is the margin for the
-#: change of the joint rates along a sample near a singularity (the servo refuses 110 % as a jump).
-JOINT_SPEED_SHARE = 0.9
 #: A Cartesian jog along a straight line (or about an axis) goes at most this far [m or rad] in one go: the
 #: profile's target, far enough never to be reached while jogging by hand.
 CARTESIAN_REACH = 10.0
@@ -129,6 +127,7 @@ class Jogger:
         self._lapsed: tuple[JogCommand, int, float] | None = None
         #: When the newest call arrived, and the newest served [monotonic s]: one between them waits for the lock.
         self._arrived = self._served = 0.0
+        self._cost = 5e-4  # [s] an extension's time per sample, the last one's (a Cartesian 7-axis jog's here)
         self._loop = LoopThread(self._run, "planner-jog")
 
     # ------------------------------------------------------------------ life cycle
@@ -351,7 +350,7 @@ class Jogger:
         q = jog.q_end
         for i in range(count):
             before = jog.track.state, jog.path.state()
-            q_next = jog.path.at(q, jog.track.step(jog.speed if jog.cmd.joint >= 0 else self._cap(jog, q)))
+            q_next = jog.path.at(q, jog.track.step(*jog.path.limits(q, jog.speed)))
             if i + 1 + max(jog.track.stop_time(), jog.path.stop_time()) / self.dt > budget:
                 jog.track.restore(before[0])  # its stop would end after the lease: the stop begins here
                 jog.path.restore(before[1])
@@ -365,15 +364,6 @@ class Jogger:
             return np.empty((0, self.model.dof)), ""
         chunk = np.array(rows)
         return chunk, self._check(jog, chunk, checks, collisions, fk)
-
-    def _cap(self, jog: _Jog, q: Joints) -> float:
-        """A Cartesian jog's speed at ``q``: the one asked for, or less where a joint would be too fast."""
-        g = np.abs(jog.path.rate(q)[:self.model.axis_num])
-        checks, _, _ = self._kit()
-        top = checks.vmax(jog.settings)[:self.model.axis_num] * JOINT_SPEED_SHARE
-        moving = g > 1e-12
-        allowed = float(np.min(top[moving] / g[moving])) if moving.any() else jog.speed
-        return min(jog.speed, allowed)
 
     def _braking(self, jog: _Jog, q: Joints) -> NDArray[np.float64]:
         if isinstance(jog.path, CartesianPath):
@@ -396,16 +386,22 @@ class Jogger:
         n = self.model.axis_num
         lo, hi = checks.soft_limits(jog.settings)
         if isinstance(jog.path, CartesianPath) and len(chunk) >= 2:
-            # Each joint must also be able to stop on its own at its acceleration: near a singularity the joints
-            # lag the line, and a wrist axis spun fast stops further than the line's stop says.
-            # Every sample's (the servo checks every command so).
+            # Where each sample's stop ends (``CartesianPath.stop``): near a singularity the joints lag the line, and
+            # a wrist axis spun fast stops further than the line's stop says. Every sample's (as the servo checks).
             v = np.diff(chunk[:, :n], axis=0) / self.dt
-            reach = chunk[1:, :n] + np.sign(v) * v * v / (2.0 * jog.path.amax)
+            reach = chunk[1:, :n] + v * np.max(np.abs(v) / jog.path.amax, axis=1, keepdims=True) / 2.0
             ahead = np.vstack([ahead, np.hstack([reach, chunk[1:, n:]])])
         bad = np.argwhere((ahead[:, :n] < lo - 1e-9) | (ahead[:, :n] > hi + 1e-9))
         if bad.size:
             i = int(bad[0][1])
             return f"J{i + 1} would pass its joint soft limit [{lo[i]:.6g}, {hi[i]:.6g}]"
+        if isinstance(jog.path, CartesianPath):
+            state = jog.path.state()
+            stop = jog.path.stop(last)  # the stop the servo will hold
+            jog.path.restore(state)
+            near = jog.path.too_singular(jog.q_end, np.vstack([chunk, stop]))
+            if near:
+                return near
         frames = Frames.of(jog.settings)
         positions = frames.to_robot(fk.run(ahead[:, :n], frames.tool)[0])
         try:
@@ -467,10 +463,14 @@ class Jogger:
         else:
             return  # stopping as the lease says, unless renewed
         count = int(pos + HORIZON / self.dt - at)
+        if at == jog.cruise_end:  # handed over before the servo reaches the splice: half the time left
+            room = (at - pos) * self.dt - LEAD
+            count = min(count, max(int(round(TICK / self.dt)), int(room / 2.0 / self._cost)))
         if count <= 0 or not renewed and (jog.full or count < int(round(TICK / self.dt))):
             return  # nothing more to give until a renewal, or until the servo has taken some
         before = jog.q_end.copy(), jog.track.state, jog.path.state()
         rows, moved, ended = self._extend(jog, count, stop_by - at)
+        self._cost = (time.monotonic() - now) / max(len(rows), 1)
         jog.full = moved < count
         if moved == 0 and not ended and at == jog.cruise_end:
             return  # the same stop again

@@ -2,9 +2,11 @@
 
 A jog's path is a function of one parameter ``s`` [rad or m]: a joint jog moves one joint ``s`` along its
 axis (:class:`JointPath`); a Cartesian jog moves the control point ``s`` along or about one axis
-(:class:`CartesianPath`), each sample solved from the one before by one damped least squares step
-(Chiaverini's damping, growing near a singularity), so that near one the jog slows down instead of asking the
-joints for speeds they do not have, and a jog the other way backs out. The speed along ``s`` follows a
+(:class:`CartesianPath`), each sample solved from the one before by one least squares step (a 7-axis arm
+also holds its arm angle), damped only within :data:`SINGULAR` of a singularity (Nakamura and Hanafusa's
+damping, growing as the smallest singular value falls). Near one the jog slows down within the joints' speeds
+and accelerations, and ``jog.py`` stops it at :data:`SINGULAR` (the arm keeps to its line and its posture,
+and a jog the other way backs out). The speed along ``s`` follows a
 jerk-limited profile (:class:`Track`: Ruckig, one degree of freedom, one sample at a time).
 
 The stop of a jog is planned before the jog goes on: :func:`stop_time` bounds it, :func:`speed_to_stop_within`
@@ -25,9 +27,24 @@ from .frames import Frames
 from .profile import ProfileLimits, stop_profile
 from .trajectory import Joints
 
-#: Damped least squares: below this manipulability ``sqrt(det(J Jᵀ))`` the damping grows to ``DAMPING`` at 0.
-MANIPULABILITY = 0.02
-DAMPING = 0.05
+#: [m/rad or rad/rad] The smallest singular value of the Jacobian's held rows (and the arm angle's, 7 axes)
+#: below which a Cartesian jog does not go deeper (``jog.py``), and the least squares step is damped
+#: (λ² = SINGULAR² - σ²). The iiwa's elbow at 1.7 degrees from stretched (about 2 mm short of its reach), a
+#: wrist at a third of a degree; 2-4 % of random poses of the articulated arms are below it. Deeper, a line
+#: needs joint rates that change faster than the joints can follow: with no such stop (and the step before
+#: this one) the iiwa left its line by 40 mm, its elbow went through the singularity and the tool moved against
+#: the jog.
+SINGULAR = 0.005
+#: A Cartesian jog asks each joint for at most this share of its max speed: the rest is the margin for the
+#: change of the joint rates along a sample near a singularity (the servo refuses 110 % as a jump).
+JOINT_SPEED_SHARE = 0.9
+#: A Cartesian jog's speed changes with at most this share of each joint's acceleration: the rest is for the
+#: change of the joint rates along the line (large near a singularity: the iiwa's joints then lagged its line
+#: by 3.0 mm, 1.8 mm with this share).
+JOINT_ACCEL_SHARE = 0.5
+#: A Cartesian jog's nearness to a singularity is looked at every this many samples, and at the last: it
+#: changes little in 10 ms.
+SINGULAR_STRIDE = 10
 
 
 def stop_time(speed: float, accel: float, limits: ProfileLimits) -> float:
@@ -77,9 +94,10 @@ class Track:
             [state[0]], [state[1]], [state[2]])
         self.finished = False
 
-    def step(self, speed: float) -> float:
-        """The next sample's ``s``, at most ``speed`` [per s]."""
+    def step(self, speed: float, accel: float = math.inf) -> float:
+        """The next sample's ``s``, at most ``speed`` [per s] and ``accel`` [per s²] (and the track's limits)."""
         self._inp.max_velocity = [max(speed, 1e-9)]
+        self._inp.max_acceleration = [max(min(self.limits.acceleration, accel), 1e-6)]
         result = self._otg.update(self._inp, self._out)
         if result not in (Result.Working, Result.Finished):  # never on valid limits: stay where it is
             self.finished = True
@@ -109,6 +127,10 @@ class JointPath:
         out = q.copy()
         out[self.joint] = self.q0[self.joint] + self.sign * s
         return out
+
+    def limits(self, q: Joints, speed: float) -> tuple[float, float]:
+        """The speed [rad/s or m/s] and acceleration [per s²] along ``s`` at ``q``: the jog's ``speed``."""
+        return speed, math.inf
 
     def rate(self, q: Joints) -> Joints:
         """d q / d s at ``q`` (joints per unit of ``s``)."""
@@ -152,29 +174,64 @@ class CartesianPath:
         turn = fk_frames.base.rotation if frame == "base" else x0.rotation
         self.direction = turn @ unit
         self.x0 = x0
+        # A 7-axis arm holds its arm angle too, as a LIN does (DECISIONS.md "Frames"): the least norm step
+        # let the iiwa's J1 and J5 turn by 0.9 and 1.1 rad of self-motion while its tool crept 6 mm.
+        self.elbow = kin.elbow_angle(q0[:self.n]) if kin.has_elbow and self.mask.all() else None
+        self._last: tuple[bytes, tuple[NDArray[np.float64], ...]] = (b"", ())
 
     def pose(self, s: float) -> pin.SE3:
         if self.rotation:
             return pin.SE3(pin.exp3(self.direction * s) @ self.x0.rotation, self.x0.translation)
         return pin.SE3(self.x0.rotation, self.x0.translation + self.direction * s)
 
-    def _solve(self, q: Joints, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _jacobian(self, q: Joints) -> NDArray[np.float64]:
+        """The held rows of the Jacobian at ``q``, and the arm angle's gradient on a 7-axis arm."""
         J = self.kin.jacobian(q[:self.n], self.tool)[self.mask]
-        JJt = J @ J.T
-        w = math.sqrt(max(0.0, float(np.linalg.det(JJt))))
-        damping = DAMPING ** 2 * (1.0 - (w / MANIPULABILITY) ** 2) if w < MANIPULABILITY else 0.0
-        return J.T @ np.linalg.solve(JJt + damping * np.eye(len(J)), rhs[self.mask])
+        return J if self.elbow is None else np.vstack([J, self.kin.elbow_jacobian(q[:self.n])])
+
+    def _svd(self, q: Joints) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The singular value decomposition of :meth:`_jacobian` at ``q``; the last one is kept: a sample's
+        speed (:meth:`rate`) and its step (:meth:`at`) are solved at the same joints."""
+        key = q[:self.n].tobytes()
+        if self._last[0] != key:
+            self._last = key, np.linalg.svd(self._jacobian(q), full_matrices=False)
+        return self._last[1]
+
+    def _solve(self, q: Joints, rhs: NDArray[np.float64], elbow: float = 0.0) -> NDArray[np.float64]:
+        """The joint step for the pose change ``rhs`` (x .. rz) and the arm angle change ``elbow`` [rad]."""
+        U, sigma, Vt = self._svd(q)
+        damping = SINGULAR ** 2 - sigma[-1] ** 2 if sigma[-1] < SINGULAR else 0.0
+        task = rhs[self.mask] if self.elbow is None else np.append(rhs[self.mask], elbow)
+        return Vt.T @ (sigma / (sigma * sigma + damping) * (U.T @ task))
+
+    def singular(self, q: Joints) -> float:
+        """[m/rad or rad/rad] The smallest singular value of the Jacobian (held rows, arm angle) at ``q``: 0 at
+        a singularity."""
+        return float(self._svd(q)[1][-1])
+
+    def too_singular(self, start: Joints, line: NDArray[np.float64]) -> str:
+        """Why the samples of ``line`` (on from ``start``) come too close to a singularity, "" if they do not:
+        below :data:`SINGULAR` and nearer than ``start`` (a jog that starts nearer may leave)."""
+        rows = np.vstack([line[:-1:SINGULAR_STRIDE], line[-1:]])
+        sigma = min(self.singular(q) for q in rows)
+        if sigma >= SINGULAR or sigma >= self.singular(start):
+            return ""
+        return (f"it would come too close to a singularity (the smallest singular value of its Jacobian would "
+                f"fall to {sigma:.4f}, below {SINGULAR}): jog the other way, or jog the joints")
 
     def at(self, q: Joints, s: float) -> Joints:
         target = self.pose(s)
         now = self.kin.control_point(q[:self.n], self.tool)
         err = np.concatenate([target.translation - now.translation, pin.log3(target.rotation @ now.rotation.T)])
-        dq = self._solve(q, err)
+        turn = 0.0 if self.elbow is None else math.remainder(self.elbow - self.kin.elbow_angle(q[:self.n]), math.tau)
+        dq = self._solve(q, err, turn)
         # A step never asks a joint for more than its speed, nor changes it faster than its acceleration: near a
         # singularity the joint rates a straight line needs change fast (an effort of twice J2's rating was
-        # measured before this); the arm then lags behind the line and the next steps close on it.
+        # measured before this); the arm then lags behind the line and the next steps close on it. The change
+        # is scaled as a whole: clipped joint by joint it turned the step off the line (40 mm measured).
         step = self.amax * self.dt * self.dt
-        dq = np.clip(dq, self._dq - step, self._dq + step)
+        change = dq - self._dq
+        dq = self._dq + change * min(1.0, float(np.min(step / np.maximum(np.abs(change), 1e-15))))
         over = np.max(np.abs(dq) / (self.vmax * self.dt))
         if over > 1.0:
             dq /= over
@@ -184,17 +241,17 @@ class CartesianPath:
         return out
 
     def stop(self, q: Joints) -> NDArray[np.float64]:
-        """The samples of a stop from ``q`` moving by the step before: each joint slows down on its own at its
-        acceleration (the arm leaves the line a little; the stop is what the checks assumed, joint by joint)."""
-        rows = []
+        """The samples of a stop from ``q`` moving by the step before: the joints slow down together, in the time
+        the slowest needs at its acceleration, so that the step keeps its direction (the arm stays on the line's
+        tangent: each joint braking on its own left the line by 1.4 mm and 5 mrad near a singularity)."""
         dq = self._dq.copy()
-        step = self.amax * self.dt * self.dt
-        while np.any(dq != 0.0):
-            dq = np.sign(dq) * np.maximum(np.abs(dq) - step, 0.0)
+        count = math.ceil(float(np.max(np.abs(dq) / (self.amax * self.dt * self.dt)))) if dq.any() else 0
+        rows = []
+        for k in range(1, count + 1):
             q = q.copy()
-            q[:self.n] += dq
+            q[:self.n] += dq * ((count - k) / count)
             rows.append(q)
-        self._dq = dq
+        self._dq = np.zeros_like(dq)
         return np.array(rows) if rows else q[None, :].copy()
 
     def stop_time(self) -> float:
@@ -207,6 +264,16 @@ class CartesianPath:
     def restore(self, state: object) -> None:
         self._dq = np.array(state, dtype=float)
 
+    def limits(self, q: Joints, speed: float) -> tuple[float, float]:
+        """The speed [m/s or rad/s] along ``s`` at ``q``, ``speed`` or less where a joint would be too fast, and
+        the acceleration [per s²] where a joint would accelerate too fast."""
+        g = np.abs(self.rate(q)[:self.n])
+        moving = g > 1e-12
+        if not moving.any():
+            return speed, math.inf
+        top = float(np.min(self.vmax[moving] * JOINT_SPEED_SHARE / g[moving]))
+        return min(speed, top), float(np.min(self.amax[moving] * JOINT_ACCEL_SHARE / g[moving]))
+
     def rate(self, q: Joints) -> Joints:
         """d q / d s at ``q``: the joint rates of a unit speed along the jog."""
         twist = np.concatenate([np.zeros(3), self.direction] if self.rotation else [self.direction, np.zeros(3)])
@@ -215,5 +282,5 @@ class CartesianPath:
         return g
 
 
-__all__ = ["CartesianPath", "DAMPING", "JointPath", "MANIPULABILITY", "Track", "speed_to_stop_within",
-           "stop_time"]
+__all__ = ["CartesianPath", "JOINT_ACCEL_SHARE", "JOINT_SPEED_SHARE", "JointPath", "SINGULAR", "SINGULAR_STRIDE",
+           "Track", "speed_to_stop_within", "stop_time"]
