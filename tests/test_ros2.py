@@ -373,8 +373,10 @@ def test_live_joint_states_stop_while_no_servo_is_heard(arm: LiveArm, system: tu
         try:
             time.sleep(1.0)
         finally:
+            # Taken before the servo runs again: at its real-time priority it preempts this process at once, and a
+            # joint_states it caused could carry a time before one taken after (failed once beside busy loops).
+            resumed = time.time()
             os.kill(servo, signal.SIGCONT)
-        resumed = time.time()
         wait_until(lambda: bool(states.take()), 10.0, what="joint_states again")
         time.sleep(0.2)
         got = states.take()

@@ -228,7 +228,8 @@ class CartesianPath:
         # A step never asks a joint for more than its speed, nor changes it faster than its acceleration: near a
         # singularity the joint rates a straight line needs change fast (an effort of twice J2's rating was
         # measured before this); the arm then lags behind the line and the next steps close on it. The change
-        # is scaled as a whole: clipped joint by joint it turned the step off the line (40 mm measured).
+        # is scaled as a whole: clipped joint by joint it turned the step off the line (40 mm, offline, near the
+        # iiwa's stretched elbow).
         step = self.amax * self.dt * self.dt
         change = dq - self._dq
         dq = self._dq + change * min(1.0, float(np.min(step / np.maximum(np.abs(change), 1e-15))))
