@@ -197,8 +197,10 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
 
         q1 = arm.joints()[0]
         mouse(b, "mousePressed", x, y)
-        wait_until(lambda: arm.joints()[0] > q1 + 0.02, 10.0, what="J1 moving again")
-        wait_until(traced, 10.0, what="the page's renewals traced")
+        wait_until(lambda: arm.joints()[0] > q1 + 0.02, 10.0, what="J1 moving again",
+                   explain=lambda: f"the page: {b.text()[-600:]}\n{arm.explain()}")
+        wait_until(traced, 10.0, what="the page's renewals traced",
+                   explain=lambda: f"the page: {b.text()[-600:]}\n{arm.explain()}")
 
         def close_tab() -> None:
             try:
