@@ -21,7 +21,7 @@ from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, check_arm
 from jara_arm.services.runtime.cell import CellError
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
-from .stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 from .up.router import DEFAULT_LISTEN, zerror_text
 
 

@@ -73,6 +73,7 @@ def test_a_cartesian_jog_stop_keeps_the_step_direction_within_its_time_bound(see
     path.restore(step)
     bound = path.stop_time()
     rows = path.stop(q)
+    assert np.array_equal(path.state(), step)  # pure: the jogger goes on from the step before
     steps = np.diff(np.vstack([q, rows]), axis=0)
     assert len(rows) * DT <= bound + 1e-9
     assert np.allclose(steps[-1], 0.0)  # at rest at the end

@@ -172,10 +172,13 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
         arm.wait_rest(5.0)
         assert time.monotonic() - released < LEASE + BRAKING + 0.2
         assert not moving(arm, 0, 0.2)
-        # Held, then the tab hidden (another tab in front, a phone's screen off): released.
-        mouse(b, "mousePressed", x, y)
+        # Held, then the tab hidden (another tab in front, a phone's screen off): released. J1 - this time: three
+        # presses of J1 + beside busy loops reached its soft limit (2.97 rad) and the third was refused.
+        xm, ym = button_centre(b, "-", 0)
+        mouse(b, "mouseMoved", xm, ym)
+        mouse(b, "mousePressed", xm, ym)
         q2 = arm.joints()[0]
-        wait_until(lambda: arm.joints()[0] > q2 + 0.02, 10.0, what="J1 moving, held",
+        wait_until(lambda: arm.joints()[0] < q2 - 0.02, 10.0, what="J1 moving back, held",
                    explain=lambda: f"the page: {b.text()[-600:]}\n{arm.explain()}")
         b._call("Runtime.evaluate", expression="Object.defineProperty(document, 'hidden', {value: true, "
                 "configurable: true}); document.dispatchEvent(new Event('visibilitychange'))")
@@ -183,7 +186,9 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
         arm.wait_rest(5.0)
         assert time.monotonic() - hidden < LEASE + BRAKING + 0.2
         b._call("Runtime.evaluate", expression="delete document.hidden")
-        mouse(b, "mouseReleased", x, y)
+        mouse(b, "mouseReleased", xm, ym)
+        arm.home()  # J1 back to 0: the third press has the whole way to the soft limit
+        mouse(b, "mouseMoved", x, y)
         # Held, then the tab closed: the calls stop, the lease lapses. Every jog call the command answers is traced
         # (``trace/Ext/jogJoint``, while someone subscribes): the last one is the page's last renewal.
         calls = arm.session.declare_subscriber(arm.keys.trace("Ext", OP.jogJoint), zenoh.handlers.FifoChannel(4096))

@@ -16,7 +16,7 @@ from jara_arm.services.runtime.arguments import non_negative_float, positive_flo
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, open_session
-from ..stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 
 
 def _arguments(parser: argparse.ArgumentParser) -> None:

@@ -35,7 +35,7 @@ from jara_arm.services.runtime.arguments import positive_float
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..ros2.bag import BagError, Ros2Bag, bag_path
 from ..session import add_client_zenoh_arguments, arm_id, open_session
-from ..stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 from .progress import Progress, human_size
 from .recording import RecordingError, RecordingWriter, to_json
 

@@ -35,7 +35,7 @@ from jara_arm.services.runtime.wire import label
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, open_session
-from ..stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 from .progress import Progress
 from .recording import Info, RecordingError, read_messages
 from .recording import info as recording_info

@@ -28,7 +28,7 @@ from jara_arm.services.runtime.arguments import positive_float
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_arm, add_client_zenoh_arguments, no_answer, open_session
-from ..stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 
 #: Exit status of a reply whose id is not OK, or of no reply at all.
 FAILED = 1

@@ -24,7 +24,7 @@ from jara_arm.schema.keys import DEFAULT_ARM, Service
 
 from ..command import Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, open_session
-from ..stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 
 SPEED_JOINT = 40  # [%]
 SPEED_CARTESIAN = 60  # [%] of 0.25 m/s by default

@@ -26,7 +26,7 @@ from jara_arm.services.runtime.arguments import positive_float, positive_int
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_arm, add_client_zenoh_arguments, open_session
-from ..stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 from .arm_state import sample_encoding
 
 _ARM_CHUNK = f"{PREFIX}/<arm>/"

@@ -23,7 +23,7 @@ from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_en
 
 from ..command import Command, setup_logging
 from ..secure.refusals import RefusalLog
-from ..stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 from .gateway import GATEWAY_ZID, FeedbackRelay, bus_config, gateway_config
 
 log = logging.getLogger("jara_arm.launcher")

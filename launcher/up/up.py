@@ -29,7 +29,7 @@ from jara_arm.services.runtime.timing import SAME_HOST, Health, add_health_argum
 
 from ..command import Command, setup_logging
 from ..ros2.bridge import add_ros_arguments
-from ..stop_signals import StopSignals
+from jara_arm.services.runtime.stop_signals import StopSignals
 from ..tools.watch import LogPrinter
 from .gateway import private_bus
 from .router import (DEFAULT_LISTEN, Presence, RouterError, RouterSettings, add_router_options, local_endpoint,

@@ -334,9 +334,7 @@ class Jogger:
     def _with_stop(self, jog: _Jog, chunk: NDArray[np.float64]) -> NDArray[np.float64]:
         """``chunk``, the stop from its end (from the track's and the path's state, left as they are), and the
         last sample again."""
-        state = jog.path.state()
         stop = self._braking(jog, jog.q_end)
-        jog.path.restore(state)
         parts = [p for p in (chunk, stop) if len(p)]
         rows = np.vstack(parts) if parts else jog.q_end[None, :]
         return np.vstack([rows, rows[-1:]])
@@ -396,9 +394,7 @@ class Jogger:
             i = int(bad[0][1])
             return f"J{i + 1} would pass its joint soft limit [{lo[i]:.6g}, {hi[i]:.6g}]"
         if isinstance(jog.path, CartesianPath):
-            state = jog.path.state()
             stop = jog.path.stop(last)  # the stop the servo will hold
-            jog.path.restore(state)
             near = jog.path.too_singular(jog.q_end, np.vstack([chunk, stop]))
             if near:
                 return near

@@ -244,15 +244,15 @@ class CartesianPath:
     def stop(self, q: Joints) -> NDArray[np.float64]:
         """The samples of a stop from ``q`` moving by the step before: the joints slow down together, in the time
         the slowest needs at its acceleration, so that the step keeps its direction (the arm stays on the line's
-        tangent: each joint braking on its own left the line by 1.4 mm and 5 mrad near a singularity)."""
-        dq = self._dq.copy()
+        tangent: each joint braking on its own left the line by 1.4 mm and 5 mrad near a singularity). Pure: the
+        path's state is left as it is (the jogger asks for the stop after each extension, then goes on)."""
+        dq = self._dq
         count = math.ceil(float(np.max(np.abs(dq) / (self.amax * self.dt * self.dt)))) if dq.any() else 0
         rows = []
         for k in range(1, count + 1):
             q = q.copy()
             q[:self.n] += dq * ((count - k) / count)
             rows.append(q)
-        self._dq = np.zeros_like(dq)
         return np.array(rows) if rows else q[None, :].copy()
 
     def stop_time(self) -> float:

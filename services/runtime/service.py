@@ -36,8 +36,6 @@ import faulthandler
 import gc
 import logging
 import os
-import queue
-import signal
 import sys
 import threading
 import time
@@ -56,6 +54,7 @@ from .cell import SERVICE_IDENTITY
 from .heartbeat import Heartbeat, Pulse
 from .logs import ZenohLogHandler, setup_stderr
 from .realtime import realtime_process
+from .stop_signals import StopSignals
 from .rpc import Answer, InterfaceServer, QueryServer
 from .timing import Health, add_health_arguments, health_from_args
 from .zenoh_args import add_zenoh_arguments, config_from_args
@@ -243,28 +242,8 @@ def _depart(stop: threading.Event, heartbeat: Heartbeat, token: zenoh.Liveliness
 
 
 def stop_event(exit_with_parent: bool = False) -> threading.Event:
-    """An event set by SIGINT/SIGTERM (and by the parent's death, if asked).
-
-    The signal handler only puts the signal on a ``queue.SimpleQueue`` (reentrant); a thread
-    logs it and sets the event. A handler that logged or set the event itself would run in the
-    main thread between two bytecodes, perhaps while that thread holds the event's or a log
-    handler's lock, and deadlock the shutdown.
-    """
-    stop = threading.Event()
-    received: queue.SimpleQueue[int] = queue.SimpleQueue()
-
-    def _handle(signum: int, _frame: object) -> None:
-        received.put(signum)
-
-    def _watch_signals() -> None:
-        while True:
-            signum = received.get()
-            log.info("received %s, shutting down", signal.Signals(signum).name)
-            stop.set()
-
-    threading.Thread(target=_watch_signals, name="signal-watch", daemon=True).start()
-    signal.signal(signal.SIGINT, _handle)
-    signal.signal(signal.SIGTERM, _handle)
+    """An event set by SIGINT/SIGTERM (logged; see :class:`StopSignals`), and by the parent's death if asked."""
+    stop = StopSignals(lambda name: log.info("received %s, shutting down", name)).stop
     if exit_with_parent:
         parent = os.getppid()
 
