@@ -261,6 +261,7 @@ def test_up_with_the_demo_runs_it_clean_and_raises_no_alarm() -> None:
         assert "FAILED" not in out, out
         assert "alarm 0x" not in out and "raised" not in out, out
         assert "was silent for" not in out, out  # no stall of any service, either
+        assert "held the servo process" not in out, out  # nor of the servo's clock by a garbage collection
 
 
 @pytest.mark.timeout(120)
