@@ -19,9 +19,9 @@ import zenoh
 from jara_arm.client import ArmError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, check_arm
 from jara_arm.services.runtime.cell import CellError
+from jara_arm.services.runtime.stop_signals import StopSignals
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
-from jara_arm.services.runtime.stop_signals import StopSignals
 from .up.router import DEFAULT_LISTEN, zerror_text
 
 

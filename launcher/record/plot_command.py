@@ -13,10 +13,10 @@ from jara_arm.client import Arm
 from jara_arm.robots import ROBOTS
 from jara_arm.schema.keys import DEFAULT_ARM
 from jara_arm.services.runtime.arguments import non_negative_float, positive_float
+from jara_arm.services.runtime.stop_signals import StopSignals
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, open_session
-from jara_arm.services.runtime.stop_signals import StopSignals
 
 
 def _arguments(parser: argparse.ArgumentParser) -> None:

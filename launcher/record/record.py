@@ -31,11 +31,11 @@ import zenoh
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import ArmKeys, any_arm_every_key, arm_of
 from jara_arm.services.runtime.arguments import positive_float
+from jara_arm.services.runtime.stop_signals import StopSignals
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..ros2.bag import BagError, Ros2Bag, bag_path
 from ..session import add_client_zenoh_arguments, arm_id, open_session
-from jara_arm.services.runtime.stop_signals import StopSignals
 from .progress import Progress, human_size
 from .recording import RecordingError, RecordingWriter, to_json
 

@@ -31,11 +31,11 @@ from jara_arm.schema import codec
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import ArmKeys, encoding_of, key_info, parse_alive
 from jara_arm.services.runtime.arguments import positive_float
+from jara_arm.services.runtime.stop_signals import StopSignals
 from jara_arm.services.runtime.wire import label
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, open_session
-from jara_arm.services.runtime.stop_signals import StopSignals
 from .progress import Progress
 from .recording import Info, RecordingError, read_messages
 from .recording import info as recording_info

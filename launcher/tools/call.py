@@ -25,10 +25,10 @@ from jara_arm.schema.codes import ReturnCode
 from jara_arm.schema.errors import JaraArmError, WireError
 from jara_arm.schema.operations import ALL, COMMON, Operation
 from jara_arm.services.runtime.arguments import positive_float
+from jara_arm.services.runtime.stop_signals import StopSignals
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_arm, add_client_zenoh_arguments, no_answer, open_session
-from jara_arm.services.runtime.stop_signals import StopSignals
 
 #: Exit status of a reply whose id is not OK, or of no reply at all.
 FAILED = 1

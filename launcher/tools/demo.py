@@ -21,10 +21,10 @@ from jara_arm.client import Arm, ArmError, Motion, MotionFailed, Refused, rel
 from jara_arm.robots import ROBOTS, Family, RobotModel
 from jara_arm.schema.codes import ReturnCode, StateBit
 from jara_arm.schema.keys import DEFAULT_ARM, Service
+from jara_arm.services.runtime.stop_signals import StopSignals
 
 from ..command import Command, setup_logging
 from ..session import add_client_zenoh_arguments, arm_id, open_session
-from jara_arm.services.runtime.stop_signals import StopSignals
 
 SPEED_JOINT = 40  # [%]
 SPEED_CARTESIAN = 60  # [%] of 0.25 m/s by default

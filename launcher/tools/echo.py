@@ -23,10 +23,10 @@ from jara_arm.schema.codec import Encoding
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import KEY_TABLE, PREFIX, ArmKeys, Service
 from jara_arm.services.runtime.arguments import positive_float, positive_int
+from jara_arm.services.runtime.stop_signals import StopSignals
 
 from ..command import USAGE_ERROR, Command, setup_logging
 from ..session import add_arm, add_client_zenoh_arguments, open_session
-from jara_arm.services.runtime.stop_signals import StopSignals
 from .arm_state import sample_encoding
 
 _ARM_CHUNK = f"{PREFIX}/<arm>/"

@@ -19,11 +19,11 @@ import zenoh
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import any_arm_alive, parse_alive
 from jara_arm.services.runtime.cell import ROUTER_IDENTITY, CellError
+from jara_arm.services.runtime.stop_signals import StopSignals
 from jara_arm.services.runtime.zenoh_args import add_zenoh_arguments, default_endpoint, zenoh_config
 
 from ..command import Command, setup_logging
 from ..secure.refusals import RefusalLog
-from jara_arm.services.runtime.stop_signals import StopSignals
 from .gateway import GATEWAY_ZID, FeedbackRelay, bus_config, gateway_config
 
 log = logging.getLogger("jara_arm.launcher")

@@ -25,11 +25,11 @@ from jara_arm.robots import DEFAULT_ROBOT, ROBOTS, Obstacle, RobotModelError
 from jara_arm.schema.keys import DEFAULT_ARM, ArmIdError, Service, any_arm_log, check_arm
 from jara_arm.services.runtime.cell import SERVICE_IDENTITY
 from jara_arm.services.runtime.realtime import realtime_process
+from jara_arm.services.runtime.stop_signals import StopSignals
 from jara_arm.services.runtime.timing import SAME_HOST, Health, add_health_arguments, health_argv, health_from_args
 
 from ..command import Command, setup_logging
 from ..ros2.bridge import add_ros_arguments
-from jara_arm.services.runtime.stop_signals import StopSignals
 from ..tools.watch import LogPrinter
 from .gateway import private_bus
 from .router import (DEFAULT_LISTEN, Presence, RouterError, RouterSettings, add_router_options, local_endpoint,

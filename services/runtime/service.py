@@ -54,8 +54,8 @@ from .cell import SERVICE_IDENTITY
 from .heartbeat import Heartbeat, Pulse
 from .logs import ZenohLogHandler, setup_stderr
 from .realtime import realtime_process
-from .stop_signals import StopSignals
 from .rpc import Answer, InterfaceServer, QueryServer
+from .stop_signals import StopSignals
 from .timing import Health, add_health_arguments, health_from_args
 from .zenoh_args import add_zenoh_arguments, config_from_args
 
