@@ -163,7 +163,12 @@ def car(p, R) -> dict:
 def dipped(p: np.ndarray) -> bool:
     """Whether the speed along points ``p`` (one per cycle) fell below half the speed reached so far and
     then rose again by a quarter of it: a stop-and-go on the way, not the end of the motion."""
-    v = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    return speed_dipped(np.linalg.norm(np.diff(p, axis=0), axis=1))
+
+
+def speed_dipped(v: np.ndarray) -> bool:
+    """Whether speeds ``v`` (in time order, any unit) fell below half the speed reached so far and then rose
+    again by a quarter of it (``dipped``)."""
     reached = np.maximum.accumulate(v)
     low = np.flatnonzero((v < 0.5 * reached) & (reached > 0))
     return any(v[i:].max() > v[i] + 0.25 * reached[i] for i in low)

@@ -1,7 +1,7 @@
 """Soak: N arms moving continuously for M minutes; every alarm in a soak is a false alarm.
 
     python bench/soak.py [--arms N] [--minutes M] [--hog] [--slow-client] [--frozen-client] [--reader]
-                         [--robot iiwa] [--timing same-host]
+                         [--view] [--recorder] [--motion ptp|lin] [--robot iiwa] [--timing same-host]
 
 Starts ``jara-arm up`` with N arms, switches every servo on and drives each arm
 back and forth between two joint poses (``movePTPJointAbs`` at 50 %, the next
@@ -12,6 +12,15 @@ subscribes to ``JARA_ARM/**`` and spends 20 ms in each sample's callback; ``--fr
 that subscribes to every arm's ``Servo/posFeedback`` and is stopped (SIGSTOP) for 10 s, let go for
 5 s, again and again (``bench/bad_client.py``). ``--reader`` connects a client that takes every
 arm's ``Servo/posFeedback`` and keeps up: what the bad clients ask for, without their badness.
+``--view`` runs ``jara-arm view`` with the page open in headless Chromium (software WebGL, as on a PC
+without a GPU); ``--recorder`` runs ``jara-arm record`` of every arm into a temporary MCAP file: the
+tools a user watches a cell with, beside its motions.
+
+``--motion lin``: each arm runs LINs instead (``moveLinearCartesianRel``, 0.1 m along x and back, each
+from rest after the last ended: every one an early start), and each LIN's control point speed,
+from the arm's 1 kHz ``Servo/posFeedback``, is checked for a dip (``bench/motion.py``'s ``speed_dipped``:
+fell below half the speed reached and rose again, a stop-and-go). A LIN that did not arrive
+(``Motion.wait`` raised) counts as refused.
 
 Reports per arm: servo cycles, cycles late by more than one period, overruns,
 underruns (from the servo's own ``Servo/health``), motions completed, calls
@@ -29,29 +38,38 @@ import multiprocessing
 import os
 import re
 import signal
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _system import client, launched_system  # noqa: E402
+from _system import client, free_port, launched_system  # noqa: E402
 import cpu  # noqa: E402
+from motion import speed_dipped  # noqa: E402
 
-from jara_arm.client import Arm, NoAnswer  # noqa: E402
+from jara_arm.client import Arm, ArmError, NoAnswer, rel  # noqa: E402
+from jara_arm.kinematics import Kinematics  # noqa: E402
 from jara_arm.launcher.tools.watch import format_log  # noqa: E402
 from jara_arm.robots import robot  # noqa: E402
 from jara_arm.schema import codec, messages  # noqa: E402
 from jara_arm.schema.codes import ReturnCode, StateBit  # noqa: E402
 from jara_arm.schema.keys import ANY_ARM, ArmKeys, any_arm_alarm, any_arm_log, arm_of  # noqa: E402
 from jara_arm.schema.operations import OP, Interface  # noqa: E402
+from jara_arm.schema.wire_types import TIMED_JOINT_POS  # noqa: E402
 from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
 
 SPEED = 50  # [%] of the rated joint speeds
 SWING = 0.4  # [rad or m] J1 and J2 swing between the two poses (scaled for prismatic axes)
+LIN_STEP = 0.1  # [m] --motion lin: each LIN's length, along x and back
+MOVING = 0.05  # [-] of a LIN's top speed: from the first to the last sample above it, it is judged for dips
 
 
 @dataclasses.dataclass
@@ -73,6 +91,10 @@ class ArmTally:
         self.windows.append((t, h.lateCycles, h.latenessMax))
     motions: int = 0
     refused: list[str] = dataclasses.field(default_factory=list)
+    lins: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # --motion lin: (start, end) [s]
+    feedback: list[tuple[float, zenoh.Sample]] = dataclasses.field(default_factory=list)  # --motion lin: (t [s], it)
+    dips: int = 0
+    dipped: list[str] = dataclasses.field(default_factory=list)  # --motion lin: each dipped LIN's speed
 
 
 #: A watcher's stall line: "the <service> service was silent for <N> ms and is back".
@@ -124,6 +146,38 @@ def freeze_cycles(proc: subprocess.Popen, stop: threading.Event) -> None:
         stop.wait(FREEZE[1])
 
 
+def start_tool(argv: list[str], first: str, timeout: float = 60.0) -> tuple[subprocess.Popen, str]:
+    """``jara-arm <argv>`` started, and its first output line that holds ``first`` (its other lines kept)."""
+    proc = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    assert proc.stdout is not None
+    deadline = time.monotonic() + timeout
+    for line in proc.stdout:
+        if first in line:
+            break
+        if time.monotonic() > deadline:
+            proc.kill()
+            raise RuntimeError(f"jara-arm {argv[0]} did not print {first!r} within {timeout:.0f} s")
+    else:
+        raise RuntimeError(f"jara-arm {argv[0]} ended (exit {proc.wait()}) before printing {first!r}")
+    return proc, line.strip()
+
+
+def start_view(port: int, workdir: Path) -> list[subprocess.Popen]:
+    """``jara-arm view`` of the system and its page open in headless Chromium (which must be installed)."""
+    browser = next((p for n in ("chromium", "chromium-browser", "google-chrome") if (p := shutil.which(n))), None)
+    if browser is None:
+        raise SystemExit("--view: no Chromium on this machine (make browser installs it)")
+    view, line = start_tool(["view", "--connect", f"tcp/127.0.0.1:{port}", "--port", str(free_port())],
+                            "jara-arm view: ")
+    threading.Thread(target=collections.deque, args=(view.stdout, 0), daemon=True).start()
+    url = line.split()[2]
+    page = subprocess.Popen([browser, "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
+                             "--enable-unsafe-swiftshader", "--no-first-run", f"--user-data-dir={workdir}/chromium",
+                             url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return [view, page]
+
+
 def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Two joint poses around the ready pose, inside the limits."""
     m = robot(model_name)
@@ -134,6 +188,54 @@ def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
         centre = min(max(m.ready_pose[i], lim.lower + swing), lim.upper - swing)
         a[i], b[i] = centre - swing / 2, centre + swing / 2
     return tuple(a), tuple(b)
+
+
+def drive_lins(arm: Arm, until: float, tally: ArmTally, stop: threading.Event) -> None:
+    """LINs of ``LIN_STEP`` along x and back until ``until`` (monotonic), each from rest, each waited for."""
+    sign = 1.0
+    try:
+        arm.servoON()
+        arm.setSpeedCartesian(SPEED)
+        while time.monotonic() < until and not stop.is_set():
+            t0 = time.monotonic()
+            try:
+                arm.moveLinearCartesianRel(rel(dx=sign * LIN_STEP), wait=True, timeout=30.0)
+            except ArmError as exc:
+                tally.refused.append(f"{time.strftime('%H:%M:%S')} moveLinearCartesianRel: {exc}")
+                stop.wait(1.0)
+                continue
+            tally.lins.append((t0, time.monotonic()))
+            tally.motions += 1
+            sign = -sign
+    except ArmError as exc:
+        tally.refused.append(f"{time.strftime('%H:%M:%S')} {exc}")
+
+
+def count_dips(model_name: str, tally: ArmTally, t_start: float) -> int:
+    """How many of ``tally.lins`` show a dip in the flange's speed, from the feedback's joints and times (a
+    sample the reader missed makes a longer step, not a faster one); each dip's profile in ``tally.dipped``."""
+    fk = Kinematics(robot(model_name))
+    t = np.array([f[0] for f in tally.feedback])
+    dips = 0
+    for t0, t1 in tally.lins:
+        msgs = [decode_sample(TIMED_JOINT_POS, sample)
+                for _, sample in tally.feedback[int(np.searchsorted(t, t0)):int(np.searchsorted(t, t1))]]
+        tm = np.array([m.tm.sec + 1e-9 * m.tm.nsec for m in msgs])
+        p = np.array([fk.fk(np.asarray(m.pos, dtype=float)).translation for m in msgs])
+        if len(p) < 3 or (np.diff(tm) <= 0).any():
+            continue
+        v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(tm)
+        # At rest the measured joints tremble by nanometres: only the part that moves is judged.
+        moving = np.flatnonzero(v > MOVING * v.max())
+        v = v[moving[0]:moving[-1] + 1]
+        if speed_dipped(v):
+            dips += 1
+            top = int(np.argmax(v))
+            low = int(np.argmin(v[:top])) if top > 0 else 0
+            tally.dipped.append(f"LIN at {t0 - t_start:.1f} s: {len(v)} moving samples, {1e3 * v[low]:.1f} mm/s at "
+                                f"sample {low}, top {1e3 * v.max():.1f} mm/s at {top}; every 25th [mm/s]: "
+                                + " ".join(f"{1e3 * x:.0f}" for x in v[::25]))
+    return dips
 
 
 def drive(arm: Arm, model_name: str, until: float, tally: ArmTally, stop: threading.Event) -> None:
@@ -189,6 +291,10 @@ def main() -> int:
                     help="a client that takes every arm's 1 kHz Servo/posFeedback and keeps up")
     ap.add_argument("--frozen-client", action="store_true",
                     help="a client of Servo/posFeedback stopped 10 s of every 15")
+    ap.add_argument("--view", action="store_true", help="jara-arm view with its page open in headless Chromium")
+    ap.add_argument("--recorder", action="store_true", help="jara-arm record of every arm into a temporary file")
+    ap.add_argument("--motion", choices=("ptp", "lin"), default="ptp",
+                    help="ptp: PTPs queued back to back (default); lin: LINs from rest, checked for speed dips")
     ap.add_argument("--robot", default="iiwa")
     ap.add_argument("--timing", default="same-host")
     ap.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
@@ -203,6 +309,10 @@ def main() -> int:
     hogs: list[multiprocessing.Process] = []
     ctx = multiprocessing.get_context("spawn")
     lines: list[str] = []
+    tools: list[subprocess.Popen] = []
+    recorder: subprocess.Popen | None = None
+    recorded = ""
+    workdir = Path(tempfile.mkdtemp(prefix="soak-"))
     t_start = time.monotonic()
     with launched_system(arms=[(a, args.robot) for a in arm_ids], extra=["--timing", args.timing],
                          lines=lines, timeout=120.0) as port, client(port) as session:
@@ -234,6 +344,11 @@ def main() -> int:
         subs = [session.declare_subscriber(any_arm_alarm(), on_alarm),
                 session.declare_subscriber(any_arm_log(), on_log)]
         subs += [session.declare_subscriber(ArmKeys(a).servo_health, on_health) for a in arm_ids]
+        if args.motion == "lin":
+            def on_feedback(tally: ArmTally) -> Callable[[zenoh.Sample], None]:
+                return lambda s: tally.feedback.append((time.monotonic(), s))
+
+            subs += [session.declare_subscriber(ArmKeys(a).pos_feedback, on_feedback(tallies[a])) for a in arm_ids]
         bad: list[subprocess.Popen] = []
         stop = threading.Event()
         if args.slow_client:
@@ -245,6 +360,12 @@ def main() -> int:
             bad.append(start_bad_client("frozen", port))
             freezer = threading.Thread(target=freeze_cycles, args=(bad[-1], stop), daemon=True)
             freezer.start()
+        if args.view:
+            tools += start_view(port, workdir)
+        if args.recorder:
+            recorder = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", "record", "-o",
+                                         str(workdir / "soak.mcap"), "--connect", f"tcp/127.0.0.1:{port}"],
+                                        stdout=subprocess.DEVNULL, stderr=(workdir / "record.log").open("w"))
         if args.hog:
             hogs = [ctx.Process(target=hog, daemon=True) for _ in range(os.cpu_count() or 1)]
             for h in hogs:
@@ -257,6 +378,8 @@ def main() -> int:
         steal_thread = threading.Thread(target=record_steal, args=(steal, t_start, steal_stop), daemon=True)
         steal_thread.start()
         drivers = [threading.Thread(target=drive, args=(Arm(session, a), args.robot, until, tallies[a], stop))
+                   if args.motion == "ptp" else
+                   threading.Thread(target=drive_lins, args=(Arm(session, a), until, tallies[a], stop))
                    for a in arm_ids]
         for d in drivers:
             d.start()
@@ -268,6 +391,14 @@ def main() -> int:
         for b in bad:
             b.kill()
             b.wait()
+        if recorder is not None:
+            recorder.send_signal(signal.SIGINT)
+            recorder.wait(60)
+            said = (workdir / "record.log").read_text().replace("\r", "\n").strip().splitlines() or ["(no output)"]
+            recorded = f"exit {recorder.returncode}: {said[-1].strip()}"
+        for t in tools:
+            t.terminate()
+            t.wait(20)
         cpu_after = cpu.snapshot(roots)
         wall = time.monotonic() - t0
         steal_stop.set()
@@ -276,13 +407,17 @@ def main() -> int:
             h.terminate()
         for sub in subs:
             sub.undeclare()
+    for a, t in tallies.items():
+        t.dips = count_dips(args.robot, t, t_start) if args.motion == "lin" else 0
+        t.feedback = []
     shares: dict[str, float] = {}
     for pid, s in cpu_after.items():
         before = cpu_before[pid].ticks if pid in cpu_before else s.ticks
         shares[s.name] = shares.get(s.name, 0.0) + (s.ticks - before) / cpu._TICK / wall
     print(f"soak: {args.arms} arm(s) of {args.robot}, {wall / 60:.1f} min, hog {'on' if args.hog else 'off'}, "
           f"timing {args.timing}, slow client {'on' if args.slow_client else 'off'}, frozen client "
-          f"{'on' if args.frozen_client else 'off'}, reader {'on' if args.reader else 'off'}; "
+          f"{'on' if args.frozen_client else 'off'}, reader {'on' if args.reader else 'off'}, view "
+          f"{'on' if args.view else 'off'}, recorder {'on' if args.recorder else 'off'}, motions {args.motion}; "
           f"ready after {ready_after:.1f} s")
     print(f"{'arm':<5} {'cycles':>8} {'late>1T':>8} {'late %':>8} {'max ms':>7} {'overrun':>8} "
           f"{'underrun':>8} {'motions':>8} {'refused':>8} {'stalls':>7} {'longest':>8}")
@@ -299,7 +434,15 @@ def main() -> int:
     total_steal = sum(ticks for _, ticks in steal) / cpu._TICK
     print(f"VM steal (CPU time the hypervisor gave elsewhere): {total_steal:.1f} s over the soak, "
           f"{100 * total_steal / (wall * (os.cpu_count() or 1)):.2f} % of the CPUs")
+    if args.motion == "lin":
+        print("LINs with a speed dip: " + ", ".join(f"{a} {t.dips} of {len(t.lins)}" for a, t in tallies.items()))
+        for a, t in tallies.items():
+            for line in t.dipped[:5]:
+                print(f"  {a} {line}")
     print(cpu.table(shares))
+    if args.recorder:
+        print(f"recorder: {recorded}")
+    shutil.rmtree(workdir, ignore_errors=True)
     print(f"alarms raised: {len(alarms)}")
     for line in alarms:
         print("  " + line)
@@ -314,12 +457,13 @@ def main() -> int:
     if args.json:
         Path(args.json).write_text(json.dumps({
             "arms": args.arms, "minutes": wall / 60, "hog": args.hog, "slow_client": args.slow_client,
-            "frozen_client": args.frozen_client, "reader": args.reader, "timing": args.timing,
+            "frozen_client": args.frozen_client, "reader": args.reader,
+            "view": args.view, "recorder": recorded if args.recorder else None, "timing": args.timing,
             "ready_after_s": ready_after, "alarms": alarms, "warnings": warnings,
             "per_arm": {a: dataclasses.asdict(t) | {"stalls": stalls[a], "longest_stall_ms": longest[a]}
                         for a, t in tallies.items()},
             "cpu": shares, "steal_s": total_steal}, indent=1))
-    failed = bool(alarms) or any(t.refused for t in tallies.values())
+    failed = bool(alarms) or any(t.refused or t.dips for t in tallies.values())
     return 1 if failed else 0
 
 
