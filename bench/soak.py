@@ -17,10 +17,10 @@ without a GPU); ``--recorder`` runs ``jara-arm record`` of every arm into a temp
 tools a user watches a cell with, beside its motions.
 
 ``--motion lin``: each arm runs LINs instead (``moveLinearCartesianRel``, 0.1 m along x and back, each
-from rest after the last ended: every one an early start), and each LIN's control point speed,
-from the arm's 1 kHz ``Servo/posFeedback``, is checked for a dip (``bench/motion.py``'s ``speed_dipped``:
-fell below half the speed reached and rose again, a stop-and-go). A LIN that did not arrive
-(``Motion.wait`` raised) counts as refused.
+from rest after the last ended: every one an early start), and the flange's speed along the arm's 1 kHz
+``Servo/posFeedback``, by the servo's time stamps, is checked for dips (``count_dips``: each LIN one move,
+none whose speed fell below half the speed reached and rose again, ``bench/motion.py``'s
+``speed_dipped``). A LIN that did not arrive (``Motion.wait`` raised) counts as refused.
 
 Reports per arm: servo cycles, cycles late by more than one period, overruns,
 underruns (from the servo's own ``Servo/health``), motions completed, calls
@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import dataclasses
 import json
 import multiprocessing
@@ -69,6 +70,7 @@ from jara_arm.services.runtime.wire import decode_sample  # noqa: E402
 SPEED = 50  # [%] of the rated joint speeds
 SWING = 0.4  # [rad or m] J1 and J2 swing between the two poses (scaled for prismatic axes)
 LIN_STEP = 0.1  # [m] --motion lin: each LIN's length, along x and back
+RECORDER_EXIT = 600.0  # [s] for --recorder to write what it holds and exit, after the soak
 MOVING = 0.05  # [-] of a LIN's top speed: from the first to the last sample above it, it is judged for dips
 
 
@@ -91,7 +93,6 @@ class ArmTally:
         self.windows.append((t, h.lateCycles, h.latenessMax))
     motions: int = 0
     refused: list[str] = dataclasses.field(default_factory=list)
-    lins: list[tuple[float, float]] = dataclasses.field(default_factory=list)  # --motion lin: (start, end) [s]
     feedback: list[tuple[float, zenoh.Sample]] = dataclasses.field(default_factory=list)  # --motion lin: (t [s], it)
     dips: int = 0
     dipped: list[str] = dataclasses.field(default_factory=list)  # --motion lin: each dipped LIN's speed
@@ -197,44 +198,47 @@ def drive_lins(arm: Arm, until: float, tally: ArmTally, stop: threading.Event) -
         arm.servoON()
         arm.setSpeedCartesian(SPEED)
         while time.monotonic() < until and not stop.is_set():
-            t0 = time.monotonic()
             try:
                 arm.moveLinearCartesianRel(rel(dx=sign * LIN_STEP), wait=True, timeout=30.0)
             except ArmError as exc:
                 tally.refused.append(f"{time.strftime('%H:%M:%S')} moveLinearCartesianRel: {exc}")
                 stop.wait(1.0)
                 continue
-            tally.lins.append((t0, time.monotonic()))
             tally.motions += 1
             sign = -sign
     except ArmError as exc:
         tally.refused.append(f"{time.strftime('%H:%M:%S')} {exc}")
 
 
-def count_dips(model_name: str, tally: ArmTally, t_start: float) -> int:
-    """How many of ``tally.lins`` show a dip in the flange's speed, from the feedback's joints and times (a
-    sample the reader missed makes a longer step, not a faster one); each dip's profile in ``tally.dipped``."""
+def count_dips(model_name: str, tally: ArmTally) -> int:
+    """How many LINs show a dip in the flange's speed, from the feedback's joints and the servo's times.
+
+    The stream is cut into moves where the speed is above ``MOVING`` of the top: each LIN from rest is one
+    move. A move whose speed dips counts, and so does every move beyond the LINs driven (a LIN that stopped
+    and started again is two). The client's receive times are not used: a loaded reader gets the feedback
+    late, the servo's time stamps are when it was so. Each dipped move's profile goes to ``tally.dipped``."""
     fk = Kinematics(robot(model_name))
-    t = np.array([f[0] for f in tally.feedback])
-    dips = 0
-    for t0, t1 in tally.lins:
-        msgs = [decode_sample(TIMED_JOINT_POS, sample)
-                for _, sample in tally.feedback[int(np.searchsorted(t, t0)):int(np.searchsorted(t, t1))]]
-        tm = np.array([m.tm.sec + 1e-9 * m.tm.nsec for m in msgs])
-        p = np.array([fk.fk(np.asarray(m.pos, dtype=float)).translation for m in msgs])
-        if len(p) < 3 or (np.diff(tm) <= 0).any():
-            continue
-        v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(tm)
-        # At rest the measured joints tremble by nanometres: only the part that moves is judged.
-        moving = np.flatnonzero(v > MOVING * v.max())
-        v = v[moving[0]:moving[-1] + 1]
-        if speed_dipped(v):
+    msgs = sorted((decode_sample(TIMED_JOINT_POS, sample) for _, sample in tally.feedback),
+                  key=lambda m: (m.tm.sec, m.tm.nsec))
+    tm = np.array([m.tm.sec + 1e-9 * m.tm.nsec for m in msgs])
+    keep = np.append(True, np.diff(tm) > 0)  # one sample per servo time
+    tm = tm[keep]
+    if len(tm) < 3:
+        return 0
+    p = np.array([fk.fk(np.asarray(m.pos, dtype=float)).translation for m, k in zip(msgs, keep) if k])
+    v = np.linalg.norm(np.diff(p, axis=0), axis=1) / np.diff(tm)  # a missed sample: a longer step, same speed
+    moving = np.concatenate(([False], v > MOVING * v.max(), [False])).astype(int)
+    starts, ends = np.flatnonzero(np.diff(moving) == 1), np.flatnonzero(np.diff(moving) == -1)
+    dips = max(0, len(starts) - tally.motions)
+    for a, b in zip(starts, ends):
+        if speed_dipped(v[a:b]):
             dips += 1
-            top = int(np.argmax(v))
-            low = int(np.argmin(v[:top])) if top > 0 else 0
-            tally.dipped.append(f"LIN at {t0 - t_start:.1f} s: {len(v)} moving samples, {1e3 * v[low]:.1f} mm/s at "
-                                f"sample {low}, top {1e3 * v.max():.1f} mm/s at {top}; every 25th [mm/s]: "
-                                + " ".join(f"{1e3 * x:.0f}" for x in v[::25]))
+            top = a + int(np.argmax(v[a:b]))
+            tally.dipped.append(f"move at servo time {tm[a]:.3f} s: {b - a} moving samples, top {1e3 * v[top]:.1f} "
+                                f"mm/s at {top - a}; every 25th [mm/s]: "
+                                + " ".join(f"{1e3 * x:.0f}" for x in v[a:b:25]))
+    if len(starts) > tally.motions:
+        tally.dipped.append(f"{len(starts)} moves in the feedback for {tally.motions} LINs")
     return dips
 
 
@@ -351,64 +355,73 @@ def main() -> int:
             subs += [session.declare_subscriber(ArmKeys(a).pos_feedback, on_feedback(tallies[a])) for a in arm_ids]
         bad: list[subprocess.Popen] = []
         stop = threading.Event()
-        if args.slow_client:
-            bad.append(start_bad_client("slow", port))
-        if args.reader:  # the bad clients' demand without their badness: a reader that keeps up
-            bad.append(start_bad_client("slow", port, "--key", ArmKeys(ANY_ARM).pos_feedback, "--delay-ms", "0"))
-        freezer = None
-        if args.frozen_client:
-            bad.append(start_bad_client("frozen", port))
-            freezer = threading.Thread(target=freeze_cycles, args=(bad[-1], stop), daemon=True)
-            freezer.start()
-        if args.view:
-            tools += start_view(port, workdir)
-        if args.recorder:
-            recorder = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", "record", "-o",
-                                         str(workdir / "soak.mcap"), "--connect", f"tcp/127.0.0.1:{port}"],
-                                        stdout=subprocess.DEVNULL, stderr=(workdir / "record.log").open("w"))
-        if args.hog:
-            hogs = [ctx.Process(target=hog, daemon=True) for _ in range(os.cpu_count() or 1)]
+        try:
+            if args.slow_client:
+                bad.append(start_bad_client("slow", port))
+            if args.reader:  # the bad clients' demand without their badness: a reader that keeps up
+                bad.append(start_bad_client("slow", port, "--key", ArmKeys(ANY_ARM).pos_feedback, "--delay-ms", "0"))
+            freezer = None
+            if args.frozen_client:
+                bad.append(start_bad_client("frozen", port))
+                freezer = threading.Thread(target=freeze_cycles, args=(bad[-1], stop), daemon=True)
+                freezer.start()
+            if args.view:
+                tools += start_view(port, workdir)
+            if args.recorder:
+                recorder = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", "record", "-o",
+                                             str(workdir / "soak.mcap"), "--connect", f"tcp/127.0.0.1:{port}"],
+                                            stdout=subprocess.DEVNULL, stderr=(workdir / "record.log").open("w"))
+            if args.hog:
+                hogs = [ctx.Process(target=hog, daemon=True) for _ in range(os.cpu_count() or 1)]
+                for h in hogs:
+                    h.start()
+            until = time.monotonic() + args.minutes * 60.0
+            cpu_before = cpu.snapshot(roots)
+            t0 = time.monotonic()
+            steal: list[tuple[float, int]] = []
+            steal_stop = threading.Event()
+            steal_thread = threading.Thread(target=record_steal, args=(steal, t_start, steal_stop), daemon=True)
+            steal_thread.start()
+            drivers = [threading.Thread(target=drive, args=(Arm(session, a), args.robot, until, tallies[a], stop))
+                       if args.motion == "ptp" else
+                       threading.Thread(target=drive_lins, args=(Arm(session, a), until, tallies[a], stop))
+                       for a in arm_ids]
+            for d in drivers:
+                d.start()
+            for d in drivers:
+                d.join()
+            stop.set()
+            if freezer is not None:
+                freezer.join()
+            cpu_after = cpu.snapshot(roots)
+            wall = time.monotonic() - t0
+            steal_stop.set()
+            steal_thread.join()
+            if recorder is not None:  # behind (it runs at nice +10), it writes what it holds before it exits
+                told = time.monotonic()
+                recorder.send_signal(signal.SIGINT)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    recorder.wait(RECORDER_EXIT)
+                said = (workdir / "record.log").read_text().replace("\r", "\n").strip().splitlines() or ["(no output)"]
+                recorded = (f"exit {recorder.returncode} {time.monotonic() - told:.1f} s after SIGINT "
+                            if recorder.returncode is not None else f"still running {RECORDER_EXIT:.0f} s after SIGINT "
+                            f"(busy loops still running: {'yes' if hogs else 'no'}): {said[-1].strip()}")
+            for sub in subs:
+                sub.undeclare()
+        finally:  # nothing of the soak's outlives it, whatever failed
+            stop.set()
+            for proc in [*bad, *tools, *([recorder] if recorder is not None else [])]:
+                if proc.poll() is None:
+                    proc.terminate()
+                    try:
+                        proc.wait(20)
+                    except subprocess.TimeoutExpired:
+                        proc.kill()
+                        proc.wait()
             for h in hogs:
-                h.start()
-        until = time.monotonic() + args.minutes * 60.0
-        cpu_before = cpu.snapshot(roots)
-        t0 = time.monotonic()
-        steal: list[tuple[float, int]] = []
-        steal_stop = threading.Event()
-        steal_thread = threading.Thread(target=record_steal, args=(steal, t_start, steal_stop), daemon=True)
-        steal_thread.start()
-        drivers = [threading.Thread(target=drive, args=(Arm(session, a), args.robot, until, tallies[a], stop))
-                   if args.motion == "ptp" else
-                   threading.Thread(target=drive_lins, args=(Arm(session, a), until, tallies[a], stop))
-                   for a in arm_ids]
-        for d in drivers:
-            d.start()
-        for d in drivers:
-            d.join()
-        stop.set()
-        if freezer is not None:
-            freezer.join()
-        for b in bad:
-            b.kill()
-            b.wait()
-        if recorder is not None:
-            recorder.send_signal(signal.SIGINT)
-            recorder.wait(60)
-            said = (workdir / "record.log").read_text().replace("\r", "\n").strip().splitlines() or ["(no output)"]
-            recorded = f"exit {recorder.returncode}: {said[-1].strip()}"
-        for t in tools:
-            t.terminate()
-            t.wait(20)
-        cpu_after = cpu.snapshot(roots)
-        wall = time.monotonic() - t0
-        steal_stop.set()
-        steal_thread.join()
-        for h in hogs:
-            h.terminate()
-        for sub in subs:
-            sub.undeclare()
+                h.terminate()
     for a, t in tallies.items():
-        t.dips = count_dips(args.robot, t, t_start) if args.motion == "lin" else 0
+        t.dips = count_dips(args.robot, t) if args.motion == "lin" else 0
         t.feedback = []
     shares: dict[str, float] = {}
     for pid, s in cpu_after.items():
@@ -435,7 +448,7 @@ def main() -> int:
     print(f"VM steal (CPU time the hypervisor gave elsewhere): {total_steal:.1f} s over the soak, "
           f"{100 * total_steal / (wall * (os.cpu_count() or 1)):.2f} % of the CPUs")
     if args.motion == "lin":
-        print("LINs with a speed dip: " + ", ".join(f"{a} {t.dips} of {len(t.lins)}" for a, t in tallies.items()))
+        print("LINs with a speed dip: " + ", ".join(f"{a} {t.dips} of {t.motions}" for a, t in tallies.items()))
         for a, t in tallies.items():
             for line in t.dipped[:5]:
                 print(f"  {a} {line}")

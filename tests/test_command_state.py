@@ -91,10 +91,32 @@ def test_the_state_is_published_only_when_it_changes():
     for _ in range(100):
         tracker.on_status(status)
         tracker.on_progress(progress(seq=1))
-        tracker.tick()
+        with tracker.batch():  # nothing in it: the staleness judged
+            pass
     assert published == [StateBit.SERVO_ON]
     tracker.on_status(dataclasses.replace(status, moving=True))
     assert published == [StateBit.SERVO_ON, StateBit.SERVO_ON | StateBit.MOVING]
+
+
+def test_what_arrived_together_is_judged_together():
+    """A command service held up for longer than the staleness window finds the planner's progress and the
+    servo's statuses waiting (``Watcher.drain``): the state is published once both are in. Judged after the
+    progress alone it said 0x02, a moving arm whose servo is off (an 8-arm soak on 2 cores)."""
+    from jara_arm.services.command.state import StateTracker
+
+    published: list[int] = []
+    tracker = StateTracker(publish=lambda view: published.append(view.bits), stale_after=0.05)
+    z = (0.0,) * N
+    status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z, seq=1)
+    tracker.on_status(status)
+    wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")  # held up, unpublished
+    with tracker.batch():
+        tracker.on_progress(progress((1,), seq=1))
+        tracker.on_status(dataclasses.replace(status, moving=True, seq=2, tm=Time.now()))
+    assert published == [StateBit.SERVO_ON, StateBit.SERVO_ON | StateBit.MOVING]
+    with tracker.batch():  # nothing arrived and the servo stays silent: now it is off
+        wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")
+    assert published[-1] == StateBit.MOVING
 
 
 def test_a_stale_view_first_takes_in_what_arrived():
