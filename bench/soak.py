@@ -403,9 +403,9 @@ def main() -> int:
                 with contextlib.suppress(subprocess.TimeoutExpired):
                     recorder.wait(RECORDER_EXIT)
                 said = (workdir / "record.log").read_text().replace("\r", "\n").strip().splitlines() or ["(no output)"]
-                recorded = (f"exit {recorder.returncode} {time.monotonic() - told:.1f} s after SIGINT "
-                            if recorder.returncode is not None else f"still running {RECORDER_EXIT:.0f} s after SIGINT "
-                            f"(busy loops still running: {'yes' if hogs else 'no'}): {said[-1].strip()}")
+                ended = (f"exit {recorder.returncode} {time.monotonic() - told:.1f} s after SIGINT"
+                         if recorder.returncode is not None else f"still running {RECORDER_EXIT:.0f} s after SIGINT")
+                recorded = f"{ended} (busy loops still running: {'yes' if hogs else 'no'}): {said[-1].strip()}"
             for sub in subs:
                 sub.undeclare()
         finally:  # nothing of the soak's outlives it, whatever failed
