@@ -55,6 +55,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _system import client, free_port, launched_system  # noqa: E402
 import cpu  # noqa: E402
 from motion import speed_dipped  # noqa: E402
+from starts import STUTTER  # noqa: E402
 
 from jara_arm.client import Arm, ArmError, NoAnswer, rel  # noqa: E402
 from jara_arm.kinematics import Kinematics  # noqa: E402
@@ -310,6 +311,7 @@ def main() -> int:
     longest: collections.Counter[str] = collections.Counter()  # [ms] the longest of them
     longest_line: dict[str, str] = {}  # its log line
     warnings: list[str] = []
+    stutters: list[str] = []  # bench/starts.py's STUTTER lines, at any level
     hogs: list[multiprocessing.Process] = []
     ctx = multiprocessing.get_context("spawn")
     lines: list[str] = []
@@ -335,6 +337,8 @@ def main() -> int:
 
         def on_log(s: zenoh.Sample) -> None:
             line, level = format_log(str(s.key_expr), s.payload.to_bytes(), codec.Encoding.of(s.encoding))
+            if any(what in line for what in STUTTER):  # at any level: a clock that waited says so at INFO
+                stutters.append(line)
             if level >= 30:
                 warnings.append(line)
                 if (m := _SILENCE.search(line)) is not None:
@@ -397,6 +401,8 @@ def main() -> int:
             wall = time.monotonic() - t0
             steal_stop.set()
             steal_thread.join()
+            for sub in subs:  # the soak's figures end here, not after the recorder's exit
+                sub.undeclare()
             if recorder is not None:  # behind (it runs at nice +10), it writes what it holds before it exits
                 told = time.monotonic()
                 recorder.send_signal(signal.SIGINT)
@@ -406,8 +412,6 @@ def main() -> int:
                 ended = (f"exit {recorder.returncode} {time.monotonic() - told:.1f} s after SIGINT"
                          if recorder.returncode is not None else f"still running {RECORDER_EXIT:.0f} s after SIGINT")
                 recorded = f"{ended} (busy loops still running: {'yes' if hogs else 'no'}): {said[-1].strip()}"
-            for sub in subs:
-                sub.undeclare()
         finally:  # nothing of the soak's outlives it, whatever failed
             stop.set()
             for proc in [*bad, *tools, *([recorder] if recorder is not None else [])]:
@@ -464,6 +468,9 @@ def main() -> int:
             print(f"  refused ({a}): {line}")
     for a in sorted(longest_line):
         print(f"  longest stall ({a}): {longest_line[a]}")
+    print(f"stutters logged (a head held at its last sample, a stream run dry, a clock that waited): {len(stutters)}")
+    for line in stutters[:10]:
+        print("  " + line)
     print(f"warnings logged: {len(warnings)}")
     for line in warnings[:30]:
         print("  " + line)
@@ -472,7 +479,7 @@ def main() -> int:
             "arms": args.arms, "minutes": wall / 60, "hog": args.hog, "slow_client": args.slow_client,
             "frozen_client": args.frozen_client, "reader": args.reader,
             "view": args.view, "recorder": recorded if args.recorder else None, "timing": args.timing,
-            "ready_after_s": ready_after, "alarms": alarms, "warnings": warnings,
+            "ready_after_s": ready_after, "alarms": alarms, "warnings": warnings, "stutters": stutters,
             "per_arm": {a: dataclasses.asdict(t) | {"stalls": stalls[a], "longest_stall_ms": longest[a]}
                         for a, t in tallies.items()},
             "cpu": shares, "steal_s": total_steal}, indent=1))
