@@ -72,7 +72,7 @@ SPEED = 50  # [%] of the rated joint speeds
 SWING = 0.4  # [rad or m] J1 and J2 swing between the two poses (scaled for prismatic axes)
 LIN_STEP = 0.1  # [m] --motion lin: each LIN's length, along x and back
 RECORDER_EXIT = 600.0  # [s] for --recorder to write what it holds and exit, after the soak
-MOVING = 0.05  # [-] of a LIN's top speed: from the first to the last sample above it, it is judged for dips
+MOVING = 0.05  # [-] of the top speed over the soak (every LIN the same length and speed): above it, an arm moves
 
 
 @dataclasses.dataclass
@@ -94,7 +94,7 @@ class ArmTally:
         self.windows.append((t, h.lateCycles, h.latenessMax))
     motions: int = 0
     refused: list[str] = dataclasses.field(default_factory=list)
-    feedback: list[tuple[float, zenoh.Sample]] = dataclasses.field(default_factory=list)  # --motion lin: (t [s], it)
+    feedback: list[tuple[bytes, zenoh.Encoding]] = dataclasses.field(default_factory=list)  # --motion lin: samples
     dips: int = 0
     dipped: list[str] = dataclasses.field(default_factory=list)  # --motion lin: each dipped LIN's speed
 
@@ -152,17 +152,23 @@ def start_tool(argv: list[str], first: str, timeout: float = 60.0) -> tuple[subp
     """``jara-arm <argv>`` started, and its first output line that holds ``first`` (its other lines kept)."""
     proc = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", *argv], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    assert proc.stdout is not None
     deadline = time.monotonic() + timeout
-    for line in proc.stdout:
-        if first in line:
-            break
-        if time.monotonic() > deadline:
-            proc.kill()
-            raise RuntimeError(f"jara-arm {argv[0]} did not print {first!r} within {timeout:.0f} s")
-    else:
-        raise RuntimeError(f"jara-arm {argv[0]} ended (exit {proc.wait()}) before printing {first!r}")
-    return proc, line.strip()
+    said: list[str] = []
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for text in proc.stdout:
+            if first in text and not said:
+                said.append(text.strip())
+        # then it reads on and forgets: a full pipe would stop the tool
+
+    threading.Thread(target=read, daemon=True).start()
+    while not said and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if not said:
+        end(proc)
+        raise RuntimeError(f"jara-arm {argv[0]} did not print {first!r} within {timeout:.0f} s (exit {proc.poll()})")
+    return proc, said[0]
 
 
 def start_view(port: int, workdir: Path) -> list[subprocess.Popen]:
@@ -172,12 +178,34 @@ def start_view(port: int, workdir: Path) -> list[subprocess.Popen]:
         raise SystemExit("--view: no Chromium on this machine (make browser installs it)")
     view, line = start_tool(["view", "--connect", f"tcp/127.0.0.1:{port}", "--port", str(free_port())],
                             "jara-arm view: ")
-    threading.Thread(target=collections.deque, args=(view.stdout, 0), daemon=True).start()
     url = line.split()[2]
-    page = subprocess.Popen([browser, "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
-                             "--enable-unsafe-swiftshader", "--no-first-run", f"--user-data-dir={workdir}/chromium",
-                             url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:  # a session of its own: its renderer and GPU processes end with it (os.killpg)
+        page = subprocess.Popen([browser, "--headless=new", "--no-sandbox", "--use-angle=swiftshader",
+                                 "--enable-unsafe-swiftshader", "--no-first-run", f"--user-data-dir={workdir}/chromium",
+                                 url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    except OSError:
+        end(view)
+        raise
     return [view, page]
+
+
+def end(proc: subprocess.Popen) -> None:
+    """``proc`` ended, with its process group where it leads one (the tools and Chromium run in sessions of their
+    own: Chromium's renderer and GPU processes end with it)."""
+    def signal_it(sig: signal.Signals) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            if os.getpgid(proc.pid) == proc.pid:
+                os.killpg(proc.pid, sig)
+            else:
+                proc.send_signal(sig)
+
+    if proc.poll() is None:
+        signal_it(signal.SIGTERM)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            signal_it(signal.SIGKILL)
+            proc.wait()
 
 
 def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -193,20 +221,26 @@ def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
 
 
 def drive_lins(arm: Arm, until: float, tally: ArmTally, stop: threading.Event) -> None:
-    """LINs of ``LIN_STEP`` along x and back until ``until`` (monotonic), each from rest, each waited for."""
+    """LINs of ``LIN_STEP`` along x and back until ``until`` (monotonic), each from rest, each waited for;
+    ``tally.motions`` counts those accepted, ``tally.refused`` those refused or that did not arrive."""
     sign = 1.0
     try:
         arm.servoON()
         arm.setSpeedCartesian(SPEED)
         while time.monotonic() < until and not stop.is_set():
             try:
-                arm.moveLinearCartesianRel(rel(dx=sign * LIN_STEP), wait=True, timeout=30.0)
+                motion = arm.moveLinearCartesianRel(rel(dx=sign * LIN_STEP), wait=False)
             except ArmError as exc:
                 tally.refused.append(f"{time.strftime('%H:%M:%S')} moveLinearCartesianRel: {exc}")
                 stop.wait(1.0)
                 continue
-            tally.motions += 1
+            tally.motions += 1  # accepted: it moves, whether or not it arrives
             sign = -sign
+            try:
+                motion.wait(30.0)
+            except ArmError as exc:  # did not arrive: an alarm should say why (the soak counts both)
+                tally.refused.append(f"{time.strftime('%H:%M:%S')} moveLinearCartesianRel did not arrive: {exc}")
+                arm.wait_idle(60.0)
     except ArmError as exc:
         tally.refused.append(f"{time.strftime('%H:%M:%S')} {exc}")
 
@@ -219,7 +253,8 @@ def count_dips(model_name: str, tally: ArmTally) -> int:
     and started again is two). The client's receive times are not used: a loaded reader gets the feedback
     late, the servo's time stamps are when it was so. Each dipped move's profile goes to ``tally.dipped``."""
     fk = Kinematics(robot(model_name))
-    msgs = sorted((decode_sample(TIMED_JOINT_POS, sample) for _, sample in tally.feedback),
+    msgs = sorted((codec.decode_message(TIMED_JOINT_POS, payload, codec.Encoding.of(encoding))
+                   for payload, encoding in tally.feedback),
                   key=lambda m: (m.tm.sec, m.tm.nsec))
     tm = np.array([m.tm.sec + 1e-9 * m.tm.nsec for m in msgs])
     keep = np.append(True, np.diff(tm) > 0)  # one sample per servo time
@@ -354,7 +389,7 @@ def main() -> int:
         subs += [session.declare_subscriber(ArmKeys(a).servo_health, on_health) for a in arm_ids]
         if args.motion == "lin":
             def on_feedback(tally: ArmTally) -> Callable[[zenoh.Sample], None]:
-                return lambda s: tally.feedback.append((time.monotonic(), s))
+                return lambda s: tally.feedback.append((s.payload.to_bytes(), s.encoding))
 
             subs += [session.declare_subscriber(ArmKeys(a).pos_feedback, on_feedback(tallies[a])) for a in arm_ids]
         bad: list[subprocess.Popen] = []
@@ -372,9 +407,10 @@ def main() -> int:
             if args.view:
                 tools += start_view(port, workdir)
             if args.recorder:
-                recorder = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", "record", "-o",
-                                             str(workdir / "soak.mcap"), "--connect", f"tcp/127.0.0.1:{port}"],
-                                            stdout=subprocess.DEVNULL, stderr=(workdir / "record.log").open("w"))
+                with (workdir / "record.log").open("w") as said_file:  # the child keeps its own copy
+                    recorder = subprocess.Popen([sys.executable, "-m", "jara_arm.launcher", "record", "-o",
+                                                 str(workdir / "soak.mcap"), "--connect", f"tcp/127.0.0.1:{port}"],
+                                                stdout=subprocess.DEVNULL, stderr=said_file, start_new_session=True)
             if args.hog:
                 hogs = [ctx.Process(target=hog, daemon=True) for _ in range(os.cpu_count() or 1)]
                 for h in hogs:
@@ -415,15 +451,10 @@ def main() -> int:
         finally:  # nothing of the soak's outlives it, whatever failed
             stop.set()
             for proc in [*bad, *tools, *([recorder] if recorder is not None else [])]:
-                if proc.poll() is None:
-                    proc.terminate()
-                    try:
-                        proc.wait(20)
-                    except subprocess.TimeoutExpired:
-                        proc.kill()
-                        proc.wait()
+                end(proc)
             for h in hogs:
                 h.terminate()
+            shutil.rmtree(workdir, ignore_errors=True)
     for a, t in tallies.items():
         t.dips = count_dips(args.robot, t) if args.motion == "lin" else 0
         t.feedback = []
@@ -459,7 +490,6 @@ def main() -> int:
     print(cpu.table(shares))
     if args.recorder:
         print(f"recorder: {recorded}")
-    shutil.rmtree(workdir, ignore_errors=True)
     print(f"alarms raised: {len(alarms)}")
     for line in alarms:
         print("  " + line)

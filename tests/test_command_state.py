@@ -105,7 +105,7 @@ def test_what_arrived_together_is_judged_together():
     from jara_arm.services.command.state import StateTracker
 
     published: list[int] = []
-    tracker = StateTracker(publish=lambda view: published.append(view.bits), stale_after=0.05)
+    tracker = StateTracker(publish=lambda view: published.append(view.bits), stale_after=0.5)
     z = (0.0,) * N
     status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z, seq=1)
     tracker.on_status(status)
@@ -117,6 +117,35 @@ def test_what_arrived_together_is_judged_together():
     with tracker.batch():  # nothing arrived and the servo stays silent: now it is off
         wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")
     assert published[-1] == StateBit.MOVING
+
+
+def test_a_reply_to_a_command_held_up_waits_for_the_drain_to_say_the_servo_is_off():
+    """A call's reply (the planner's progress) taken in while the servo's status is stale: with a watcher
+    (``catch_up``) the servo's newer statuses may be waiting unread, so the next drain publishes the state, not
+    the reply; a drain that finds the servo silent says it is off."""
+    from jara_arm.services.command.state import StateTracker
+
+    published: list[int] = []
+    tracker = StateTracker(publish=lambda view: published.append(view.bits), stale_after=0.5)
+    z = (0.0,) * N
+    status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z, seq=1)
+    tracker.on_status(status)
+    waiting = [dataclasses.replace(status, moving=True, seq=2)]
+
+    def drain() -> None:
+        with tracker.batch():
+            while waiting:
+                tracker.on_status(dataclasses.replace(waiting.pop(), tm=Time.now()))
+
+    wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")  # held up: not drained
+    tracker.catch_up = drain
+    tracker.on_progress(progress((1,), seq=1))  # a plan call's reply
+    assert published == [StateBit.SERVO_ON], "a reply said the servo was off while its statuses waited unread"
+    drain()
+    assert published == [StateBit.SERVO_ON, StateBit.SERVO_ON | StateBit.MOVING]
+    # A servo that stays silent: a drain (view() runs one once stale) says it is off.
+    wait_until(lambda: tracker.view() is not None and published[-1] == StateBit.MOVING, 2.0,
+               what="the silent servo said off")
 
 
 def test_a_stale_view_first_takes_in_what_arrived():

@@ -216,7 +216,8 @@ class StateTracker:
         up for longer than the staleness window finds the planner's progress and the servo's statuses waiting
         together, and judged after the progress alone, the state would say a moving arm's servo is off (0x02,
         published in an 8-arm soak on 2 cores). An empty batch judges the time-dependent bits (a servo that
-        fell silent)."""
+        fell silent). Only the watcher's drain opens one (one at a time, under its lock); meanwhile every
+        thread's changes wait for its end, a drain's length."""
         with self._cond:
             self._batches += 1
         try:
@@ -224,13 +225,18 @@ class StateTracker:
         finally:
             with self._cond:
                 self._batches -= 1
-                self._changed()
+                self._changed(drained=True)
 
     # -- publication ------------------------------------------------------------------
-    def _changed(self) -> None:
-        """Publish the view if its bits or queue length changed (called with the lock held), unless in a batch."""
+    def _changed(self, drained: bool = False) -> None:
+        """Publish the view if its bits or queue length changed (called with the lock held), unless in a batch.
+        A servo heard before and now silent is said off only by a drain (``drained``): a call's reply seen by a
+        command held up past the staleness window may have the servo's newer statuses waiting unread."""
         if self._batches:
             return
+        silent = self._status is not None and time.monotonic() - self._status_at > self._stale_after
+        if silent and not drained and self.catch_up is not None:
+            return  # the watcher's next drain takes them in and publishes
         view = self._view()
         key = (view.bits, view.queue_length)
         if key != self._published:
