@@ -91,8 +91,7 @@ def test_the_state_is_published_only_when_it_changes():
     for _ in range(100):
         tracker.on_status(status)
         tracker.on_progress(progress(seq=1))
-        with tracker.batch():  # nothing in it: the staleness judged
-            pass
+        tracker.tick()
     assert published == [StateBit.SERVO_ON]
     tracker.on_status(dataclasses.replace(status, moving=True))
     assert published == [StateBit.SERVO_ON, StateBit.SERVO_ON | StateBit.MOVING]
@@ -100,8 +99,8 @@ def test_the_state_is_published_only_when_it_changes():
 
 def test_what_arrived_together_is_judged_together():
     """A command service held up for longer than the staleness window finds the planner's progress and the
-    servo's statuses waiting (``Watcher.drain``): the state is published once both are in. Judged after the
-    progress alone it said 0x02, a moving arm whose servo is off (an 8-arm soak on 2 cores)."""
+    servo's statuses waiting (``Watcher.drain``): the servo is not said off before its statuses are in. Judged
+    after the progress alone it said 0x02, a moving arm whose servo is off (an 8-arm soak on 2 cores)."""
     from jara_arm.services.command.state import StateTracker
 
     published: list[int] = []
@@ -110,12 +109,13 @@ def test_what_arrived_together_is_judged_together():
     status = messages.ServoStatus(Time.now(), True, False, False, 0, 0, 0, 0, z, z, z, seq=1)
     tracker.on_status(status)
     wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")  # held up, unpublished
-    with tracker.batch():
-        tracker.on_progress(progress((1,), seq=1))
-        tracker.on_status(dataclasses.replace(status, moving=True, seq=2, tm=Time.now()))
+    tracker.catch_up = lambda: None  # a watcher drains (here: the test, in its order)
+    tracker.on_progress(progress((1,), seq=1))
+    tracker.on_status(dataclasses.replace(status, moving=True, seq=2, tm=Time.now()))
+    tracker.tick()
     assert published == [StateBit.SERVO_ON, StateBit.SERVO_ON | StateBit.MOVING]
-    with tracker.batch():  # nothing arrived and the servo stays silent: now it is off
-        wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")
+    wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")
+    tracker.tick()  # a drain that found nothing: the servo stays silent, now it is off
     assert published[-1] == StateBit.MOVING
 
 
@@ -133,9 +133,9 @@ def test_a_reply_to_a_command_held_up_waits_for_the_drain_to_say_the_servo_is_of
     waiting = [dataclasses.replace(status, moving=True, seq=2)]
 
     def drain() -> None:
-        with tracker.batch():
-            while waiting:
-                tracker.on_status(dataclasses.replace(waiting.pop(), tm=Time.now()))
+        while waiting:
+            tracker.on_status(dataclasses.replace(waiting.pop(), tm=Time.now()))
+        tracker.tick()
 
     wait_until(lambda: not tracker.view().servo_heard, 2.0, what="the status stale")  # held up: not drained
     tracker.catch_up = drain

@@ -26,12 +26,11 @@ its facts with it: its later messages, still on their way, are ignored.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 from jara_arm.schema import alarms as alarm_lists
 from jara_arm.schema import messages as servo_statuses
@@ -89,7 +88,6 @@ class StateTracker:
         self._alarms: AlarmList | None = None  # the monitor's newest list, None while it is away
         self._monitor_gone_at = -float("inf")  # ``started`` [s] of the last monitor that went away
         self._published: tuple[int, int] | None = None
-        self._batches = 0  # > 0: inside batch(), the state is judged at its end
         #: Takes in what arrived and was not read yet (``Watcher.drain``); called by :meth:`view`.
         self.catch_up: Callable[[], None] | None = None
 
@@ -210,34 +208,21 @@ class StateTracker:
             self._alarms = None
             self._changed()
 
-    @contextlib.contextmanager
-    def batch(self) -> Iterator[None]:
-        """What arrives inside is taken in first and the state judged once, at the end: a command service held
-        up for longer than the staleness window finds the planner's progress and the servo's statuses waiting
-        together, and judged after the progress alone, the state would say a moving arm's servo is off (0x02,
-        published in an 8-arm soak on 2 cores). An empty batch judges the time-dependent bits (a servo that
-        fell silent). Only the watcher's drain opens one (one at a time, under its lock); meanwhile every
-        thread's changes wait for its end, a drain's length."""
+    def tick(self) -> None:
+        """The watcher's drain has taken in what was waiting: judge the state, a servo that fell silent included."""
         with self._cond:
-            self._batches += 1
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._batches -= 1
-                self._changed(drained=True)
+            self._changed(drained=True)
 
     # -- publication ------------------------------------------------------------------
     def _changed(self, drained: bool = False) -> None:
-        """Publish the view if its bits or queue length changed (called with the lock held), unless in a batch.
-        A servo heard before and now silent is said off only by a drain (``drained``): a call's reply seen by a
-        command held up past the staleness window may have the servo's newer statuses waiting unread."""
-        if self._batches:
-            return
-        silent = self._status is not None and time.monotonic() - self._status_at > self._stale_after
-        if silent and not drained and self.catch_up is not None:
-            return  # the watcher's next drain takes them in and publishes
+        """Publish the view if its bits or queue length changed (called with the lock held). A servo heard before
+        and now silent is said off only once the watcher has drained what was waiting (``drained``): a command
+        held up past the staleness window finds the planner's progress and the servo's newer statuses waiting
+        together, and judged on the progress alone (or a call's reply) the state said a moving arm's servo was
+        off (0x02, published in an 8-arm soak on 2 cores)."""
         view = self._view()
+        if not drained and self.catch_up is not None and self._status is not None and not view.servo_heard:
+            return  # the watcher's drain takes them in and publishes
         key = (view.bits, view.queue_length)
         if key != self._published:
             if self._published is not None and (view.bits ^ self._published[0]):

@@ -82,10 +82,6 @@ class Watcher:
             self._drain()
 
     def _drain(self) -> None:
-        with self._tracker.batch():  # the state judged once everything waiting is in (its end: the staleness check)
-            self._take_in()
-
-    def _take_in(self) -> None:
         while (s := self._planner.try_recv()) is not None:
             if s.kind == zenoh.SampleKind.DELETE:
                 log.warning("the planner service is gone: its queue is discarded")
@@ -111,6 +107,7 @@ class Watcher:
                 self._tracker.on_status(decode_sample(messages.SERVO_STATUS, s))
             except WireError as exc:
                 self._malformed("Servo/status", exc)
+        self._tracker.tick()  # everything waiting is in: now a silent servo may be said off
 
     def _malformed(self, what: str, exc: WireError) -> None:
         self._bad += 1
