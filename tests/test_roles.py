@@ -100,3 +100,36 @@ def test_the_cell_bus_link_has_the_router_role() -> None:
 def test_an_unknown_role_names_the_valid_ones() -> None:
     with pytest.raises(RoleError, match="roles: service, router, operator, low-level, observer"):
         Role.parse("admin")
+
+
+def _subjects_of(acl: dict, cert: str | None, protocol: str, zid: str) -> list[str]:
+    """The subjects of ``acl`` a link matches (Zenoh's rule: every attribute a subject lists must hold)."""
+    link = {"cert_common_names": cert, "link_protocols": protocol, "zids": zid}
+    listed = [{k: v for k, v in s.items() if k in link and v is not None} for s in acl["subjects"]]
+    return [s["id"] for s, attrs in zip(acl["subjects"], listed)
+            if attrs and all(link[k] in v for k, v in attrs.items())]
+
+
+def test_each_link_of_a_secure_gateway_has_one_subject_and_the_relay_deny_holds_on_the_bus_link(
+        tmp_path) -> None:
+    """Zenoh allows what any of a link's subjects allows, and traces a denial for each subject tried before
+    the one that allows: with two subjects on the bus link, the deny of the gateway's relay had no effect and
+    the refusal log reported the whole bus refused in 1 secure start of 6 (launcher/up/gateway.py)."""
+    from jara_arm.launcher.secure.certs import init_cell, issue
+    from jara_arm.launcher.up.gateway import BUS_ZID
+    from jara_arm.launcher.up.router import RouterSettings
+
+    cell = init_cell(tmp_path / "cell")
+    issue(cell, "alice", Role.OPERATOR)
+    conf = RouterSettings(listen=("tls/127.0.0.1:7447",), secure=str(tmp_path / "cell"), gateway=True).config_object()
+    acl = json.loads(conf.get_json("access_control"))
+    links = {"bus over its Unix socket": (None, "unixsock-stream", BUS_ZID),
+             "bus over TLS": ("router", "tls", BUS_ZID), "alice": ("alice", "tls", "a1")}
+    subjects = {name: _subjects_of(acl, *link) for name, link in links.items()}
+    assert subjects == {"bus over its Unix socket": [BUS_SUBJECT], "bus over TLS": [Role.ROUTER.value],
+                        "alice": [Role.OPERATOR.value]}
+    [deny] = [r for r in acl["rules"] if r["permission"] == "deny"]
+    for subject in (BUS_SUBJECT, Role.ROUTER.value):
+        [policy] = [p for p in acl["policies"] if p["subjects"] == [subject]]
+        assert deny["id"] in policy["rules"]
+    assert deny["key_exprs"] == [KEYS.pos_feedback]

@@ -48,6 +48,7 @@ from jara_arm.schema.encoding import Encoding
 from jara_arm.schema.errors import JaraArmError
 from jara_arm.schema.keys import ANY_ARM, ArmKeys, arm_of
 from jara_arm.schema.messages import feedback_block_samples
+from jara_arm.schema.roles import BUS_SUBJECT, Role
 from jara_arm.schema.traffic import Traffic
 from jara_arm.services.runtime.wire import Publication
 
@@ -117,16 +118,29 @@ def gateway_config(conf: zenoh.Config, zid: str = GATEWAY_ZID) -> None:
 def _relay_access(conf: zenoh.Config, bus: str) -> None:
     """The gateway's own ``Servo/posFeedback`` (:class:`FeedbackRelay`) never reaches the bus, nor do its
     clients' subscriptions of that key: with two gateways on one bus, each serves its own clients, once.
-    An explicit deny wins over every allow of a secure cell's roles (Zenoh's access control)."""
+
+    Zenoh allows a message on a link if any of the link's subjects allows it, and a deny wins only within
+    one subject. So in a secure cell the deny joins the policies the bus link already has (``cell-bus`` over
+    the Unix socket, ``router`` over TLS: ``schema/roles.py``), and each link keeps one subject. A subject of
+    its own for the bus (by Zenoh id) left the deny without effect there, and Zenoh traced a denial by it for
+    every message of the bus whenever a per-process hash order put it first: the refusal log then reported
+    the whole bus refused, in 1 secure start of 6, and the gateway spent its CPU logging it."""
     acl = json.loads(conf.get_json("access_control"))
-    if not acl.get("enabled"):
-        acl = {"enabled": True, "default_permission": "allow", "rules": [], "subjects": [], "policies": []}
     rule = "gateway relay stays off the bus"
-    acl["rules"] = [*(acl.get("rules") or []), {
-        "id": rule, "messages": ["put", "declare_subscriber"], "flows": ["egress"], "permission": "deny",
-        "key_exprs": [ArmKeys(ANY_ARM).pos_feedback]}]
-    acl["subjects"] = [*(acl.get("subjects") or []), {"id": "the cell bus", "zids": [bus]}]
-    acl["policies"] = [*(acl.get("policies") or []), {"id": rule, "rules": [rule], "subjects": ["the cell bus"]}]
+    deny = {"id": rule, "messages": ["put", "declare_subscriber"], "flows": ["egress"], "permission": "deny",
+            "key_exprs": [ArmKeys(ANY_ARM).pos_feedback]}
+    upstream = [p for p in (acl.get("policies") or []) if {BUS_SUBJECT, Role.ROUTER.value} & set(p["subjects"])]
+    if acl.get("enabled") and upstream:
+        acl["rules"] = [*acl["rules"], deny]
+        for policy in upstream:
+            policy["rules"] = [*policy["rules"], rule]
+    else:  # an open cell (or access control of the user's own): the bus link known by its Zenoh id
+        if not acl.get("enabled"):
+            acl = {"enabled": True, "default_permission": "allow", "rules": [], "subjects": [], "policies": []}
+        acl["rules"] = [*(acl.get("rules") or []), deny]
+        acl["subjects"] = [*(acl.get("subjects") or []), {"id": "the cell bus", "zids": [bus]}]
+        acl["policies"] = [*(acl.get("policies") or []),
+                           {"id": rule, "rules": [rule], "subjects": ["the cell bus"]}]
     conf.insert_json5("access_control", json.dumps(acl))
 
 
