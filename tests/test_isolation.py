@@ -66,18 +66,28 @@ class Cell(LiveArm):
 
     def settled(self, timeout: float = 30.0) -> None:
         """Until a second of the servo's loop (``Servo/health``) ran with at most 2 % of its cycles late: the
-        services have finished starting (the burst of a start-up is not what these tests are about)."""
+        services have finished starting (the burst of a start-up is not what these tests are about). On a
+        VM whose empty 1 kHz loop misses more than that for a while (``bench/floor.py``: 0.3-6 % over a day
+        here) the test goes on after ``timeout``, saying so: what it asserts, no alarm and every move arrived,
+        holds on a noisy host too."""
         with self.client.session.declare_subscriber(self.client.keys.servo_health,
                                                     zenoh.handlers.FifoChannel(64)) as health:
+            seen: list[str] = []
+
             def calm() -> bool:
                 while (s := health.try_recv()) is not None:
                     h = decode_sample(messages.LOOP_HEALTH, s)
+                    seen.append(f"{h.lateCycles}/{h.cycles}")
                     if h.lateCycles <= 0.02 * h.cycles:
                         return True
                 return False
 
-            wait_until(calm, timeout, 0.05, "a second of the servo loop with at most 2 % late",
-                       explain=self.explain)
+            try:
+                wait_until(calm, timeout, 0.05, "a second of the servo loop with at most 2 % late")
+            except AssertionError:
+                assert seen, f"no Servo/health for {timeout} s\n{self.explain()}"
+                print(f"the servo loop never ran a second with at most 2 % late in {timeout:.0f} s (late/cycles "
+                      f"per second: {', '.join(seen[-10:])}): going on", file=sys.stderr)
 
     def host_paused(self, since: int) -> bool:
         """Whether the log since line ``since`` shows the planner's stream running dry while the alarm
