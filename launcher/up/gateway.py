@@ -124,7 +124,7 @@ def _relay_access(conf: zenoh.Config, bus: str) -> None:
     the Unix socket, ``router`` over TLS: ``schema/roles.py``), and each link keeps one subject. A subject of
     its own for the bus (by Zenoh id) left the deny without effect there, and Zenoh traced a denial by it for
     every message of the bus whenever a per-process hash order put it first: the refusal log then reported
-    the whole bus refused, in 1 secure start of 6, and the gateway spent its CPU logging it."""
+    the whole bus refused (7 secure starts of 14), and the gateway took 6.4-7.0 % of a core instead of 5.0-5.3 %."""
     acl = json.loads(conf.get_json("access_control"))
     rule = "gateway relay stays off the bus"
     deny = {"id": rule, "messages": ["put", "declare_subscriber"], "flows": ["egress"], "permission": "deny",
