@@ -70,7 +70,8 @@ def _estops(proc: Proc, session: zenoh.Session, client: Client) -> None:
     for k in range(ROUNDS):
         cleared: list[Reply] = []
         wait_until(lambda: cleared.append(client.common(OP.clearAlarms)) or cleared[-1].id == ReturnCode.OK,
-                   5, 0.05, "clearAlarms OK", lambda: f"its last reply: {cleared[-1]}; log: {proc.lines[-20:]}")
+                   5, 0.05, "clearAlarms OK", lambda: f"its last reply: {cleared[-1]}; log: {proc.lines[-20:]}; "
+                   f"the servo's: {[line for line in proc.lines if '/servo:' in line][-15:]}")
         assert client.common(OP.servoON).id == ReturnCode.OK, proc.lines[-20:]
         assert client.middle(OP.setSpeedJoint, {"spdRatio": 30}).id == ReturnCode.OK
         turn = [0.2 if k % 2 == 0 else -0.2] + [0.0] * 6
