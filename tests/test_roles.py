@@ -11,6 +11,9 @@ import json
 import pytest
 import zenoh
 
+from jara_arm.launcher.secure.certs import init_cell, issue
+from jara_arm.launcher.up.gateway import BUS_ZID
+from jara_arm.launcher.up.router import RouterSettings
 from jara_arm.schema.keys import ANY_ARM, ArmKeys, Service, any_arm_every_key, ros2_every_key
 from jara_arm.schema.operations import COMMON, EXT, MIDDLE, Interface
 from jara_arm.schema.roles import BUS_SUBJECT, EVERY_MESSAGE, Role, RoleError, access_control, changes_nothing, ingress_rights
@@ -115,10 +118,6 @@ def test_each_link_of_a_secure_gateway_has_one_subject_and_the_relay_deny_holds_
     """Zenoh allows what any of a link's subjects allows, and traces a denial for each subject tried before
     the one that allows: with two subjects on the bus link, the deny of the gateway's relay had no effect and
     the refusal log reported the whole bus refused in 1 secure start of 6 (launcher/up/gateway.py)."""
-    from jara_arm.launcher.secure.certs import init_cell, issue
-    from jara_arm.launcher.up.gateway import BUS_ZID
-    from jara_arm.launcher.up.router import RouterSettings
-
     cell = init_cell(tmp_path / "cell")
     issue(cell, "alice", Role.OPERATOR)
     conf = RouterSettings(listen=("tls/127.0.0.1:7447",), secure=str(tmp_path / "cell"), gateway=True).config_object()

@@ -127,20 +127,18 @@ def _relay_access(conf: zenoh.Config, bus: str) -> None:
     the whole bus refused (7 secure starts of 14), and the gateway took 6.4-7.0 % of a core instead of 5.0-5.3 %."""
     acl = json.loads(conf.get_json("access_control"))
     rule = "gateway relay stays off the bus"
-    deny = {"id": rule, "messages": ["put", "declare_subscriber"], "flows": ["egress"], "permission": "deny",
-            "key_exprs": [ArmKeys(ANY_ARM).pos_feedback]}
     upstream = [p for p in (acl.get("policies") or []) if {BUS_SUBJECT, Role.ROUTER.value} & set(p["subjects"])]
-    if acl.get("enabled") and upstream:
-        acl["rules"] = [*acl["rules"], deny]
-        for policy in upstream:
-            policy["rules"] = [*policy["rules"], rule]
-    else:  # an open cell (or access control of the user's own): the bus link known by its Zenoh id
+    if not (acl.get("enabled") and upstream):  # an open cell (or access control of the user's own): by Zenoh id
         if not acl.get("enabled"):
             acl = {"enabled": True, "default_permission": "allow", "rules": [], "subjects": [], "policies": []}
-        acl["rules"] = [*(acl.get("rules") or []), deny]
         acl["subjects"] = [*(acl.get("subjects") or []), {"id": "the cell bus", "zids": [bus]}]
-        acl["policies"] = [*(acl.get("policies") or []),
-                           {"id": rule, "rules": [rule], "subjects": ["the cell bus"]}]
+        upstream = [{"id": rule, "rules": [], "subjects": ["the cell bus"]}]
+        acl["policies"] = [*(acl.get("policies") or []), *upstream]
+    acl["rules"] = [*(acl.get("rules") or []), {
+        "id": rule, "messages": ["put", "declare_subscriber"], "flows": ["egress"], "permission": "deny",
+        "key_exprs": [ArmKeys(ANY_ARM).pos_feedback]}]
+    for policy in upstream:
+        policy["rules"] = [*policy["rules"], rule]
     conf.insert_json5("access_control", json.dumps(acl))
 
 
