@@ -295,9 +295,14 @@ class ServoLoop:
         while self._calls:
             fn, fut = self._calls.popleft()
             try:
-                fut.set_result(fn())
+                result = fn()
             except Exception as exc:
                 fut.set_exception(exc)
+                continue
+            # The caller replies as soon as it has the result: a getState right after a servoON or a
+            # clearAlarms must read the bits after it, not the last cycle's (CI run 54: 0x05 after a clear).
+            self.state_bits = self._bits(self._vel_list)
+            fut.set_result(result)
         self._take_commands()
         law = self.law
         interp = self.interp
@@ -545,9 +550,8 @@ class ServoLoop:
         self._status_pub.put(messages.servo_status_payload(self._status(tm_ns)))
 
     def status_now(self) -> messages.ServoStatus:
-        """The status now, numbered, for a reply (loop thread: through :meth:`call`); its bits after what
-        the call did, not the last cycle's (the servo's getState agrees with the reply)."""
-        self.state_bits = self._bits(self._vel_list)
+        """The status now, numbered, for a reply (loop thread: through :meth:`call`, whose bits are
+        already those after the call before it)."""
         return self._status(self._tm_ns)
 
     def _status(self, tm_ns: int) -> messages.ServoStatus:
