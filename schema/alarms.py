@@ -9,7 +9,10 @@ Everything here lives under ``JARA_ARM/<arm>/Monitor/``:
 * ``Monitor/alarms`` (publisher, on every change and at 2 Hz; also a
   queryable that answers the current one): :class:`AlarmList`, the whole list.
 * ``Monitor/report`` (subscriber): :class:`AlarmReport` that a service puts
-  when it detects an alarm itself, and again when its cause has gone.
+  when it detects an alarm itself, again when its cause comes or goes, and
+  again on each list of the monitor's that holds it (``drop``: a lost "cause
+  gone" must not keep the alarm); the monitor ignores the reports of a
+  detection it has cleared (``latched``).
 * ``heartbeat/<service>`` (subscriber): :class:`Heartbeat` that every service
   publishes every ``Health.heartbeat_period`` (``services/runtime/timing.py``) from a real-time thread of its own.
   A liveliness token shows connectivity, not health: a stopped or starved
@@ -114,9 +117,12 @@ class AlarmList:
     alarms: tuple[Alarm, ...] = wire(w.ALARM_SEQ, doc="oldest first")
 
 
+#: No time said (``AlarmReport.latched`` of a source that does not number its detections).
+NO_TIME = Time(0, 0)
+
 #: No monitor's list: what ``Monitor/copy`` answers before the servo adopted one, and what a caller of
 #: ``Servo/power`` that holds none sends (never adopted: no monitor started at time 0).
-NO_LIST = AlarmList(Time(0, 0), Time(0, 0), ())
+NO_LIST = AlarmList(NO_TIME, NO_TIME, ())
 
 
 def is_newer(candidate: AlarmList, current: AlarmList | None) -> bool:
@@ -149,6 +155,11 @@ class AlarmReport:
     alarm: Alarm = wire(w.ALARM)
     present: bool = wire(w.BOOLEAN, doc="the cause is still present")  # False: clearAlarms may clear it
     source: str = wire(w.STRING, doc="the reporting service")  # a Service value
+    # Which detection: a report is sent again on every list that holds it (one lost must not keep the alarm
+    # from a clear), so the monitor must tell a cleared detection's late copy from a new detection.
+    latched: Time = wire(w.TIME, doc="when the source detected it: every report of one detection carries the "
+                         "same, a later detection a later one (0: not said; never taken for a cleared one)",
+                         default=NO_TIME)
 
 
 ALARM_LIST = struct(AlarmList, strict=False, doc="Internal: the alarm monitor's list of active alarms, Monitor/alarms.")

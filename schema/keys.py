@@ -306,10 +306,12 @@ class ArmKeys:
         return f"{self.root}/Monitor/alarms"
 
     @property
-    @_key('subscriber (internal)', 'alarm monitor', '`AlarmReport` from the services: raised, or its cause gone',
+    @_key('subscriber (internal)', 'alarm monitor',
+          '`AlarmReport` from the services: raised, its cause come or gone, and again on each `Monitor/alarms`',
           KeyEncoding.MSGPACK, Traffic.SAFETY)
     def monitor_report(self) -> str:
-        """``AlarmReport`` from any service to the alarm monitor: raised, or its cause gone."""
+        """``AlarmReport`` from any service to the alarm monitor: raised, its cause come or gone, and again on
+        each list of the monitor's."""
         return f"{self.root}/Monitor/report"
 
     @property

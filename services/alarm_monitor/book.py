@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from jara_arm.schema.alarms import AlarmReport
-from jara_arm.schema.types import Alarm
+from jara_arm.schema.types import Alarm, Time
 
 
 class AlarmBook:
@@ -18,11 +18,15 @@ class AlarmBook:
     A code may be raised by the monitor's own detectors and reported by other
     services; its cause is present while any of them says so: the detector's
     own state (asked at clear time) or the latest report of each source.
+    A source sends its reports again (a lost one must not keep an alarm), so
+    the reports of a detection already cleared (``AlarmReport.latched``) are
+    ignored: a copy in flight at the clear does not raise the alarm again.
     """
 
     def __init__(self) -> None:
         self._alarms: dict[int, Alarm] = {}
-        self._reported: dict[int, dict[str, bool]] = {}  # code -> source -> cause present
+        self._reported: dict[int, dict[str, AlarmReport]] = {}  # code -> source -> its latest report
+        self._cleared: dict[tuple[int, str], int] = {}  # (code, source) -> ``latched`` [ns] of the last cleared
 
     @property
     def alarms(self) -> tuple[Alarm, ...]:
@@ -39,13 +43,17 @@ class AlarmBook:
         return True
 
     def report(self, report: AlarmReport) -> bool:
-        """A service's report: its cause's presence is noted; True if the alarm is new."""
-        self._reported.setdefault(report.alarm.code, {})[report.source] = report.present
+        """A service's report: its cause's presence is noted; True if the alarm is new. A report of a
+        detection already cleared changes nothing (False)."""
+        latched = _ns(report.latched)
+        if latched and latched <= self._cleared.get((report.alarm.code, report.source), 0):
+            return False
+        self._reported.setdefault(report.alarm.code, {})[report.source] = report
         return self.raise_alarm(report.alarm)
 
     def cause_reported(self, code: int) -> bool:
         """Whether a service's latest report on ``code`` says its cause is still present."""
-        return any(self._reported.get(code, {}).values())
+        return any(r.present for r in self._reported.get(code, {}).values())
 
     def clear(self, detected: Callable[[int], bool]) -> tuple[list[Alarm], list[Alarm]]:
         """Clear every alarm whose cause has gone; ``detected(code)``: the monitor's own view.
@@ -58,5 +66,11 @@ class AlarmBook:
                 kept.append(alarm)
             else:
                 cleared.append(self._alarms.pop(code))
-                self._reported.pop(code, None)
+                for source, report in self._reported.pop(code, {}).items():
+                    key = (code, source)
+                    self._cleared[key] = max(self._cleared.get(key, 0), _ns(report.latched))
         return cleared, kept
+
+
+def _ns(t: Time) -> int:
+    return t.sec * 1_000_000_000 + t.nsec

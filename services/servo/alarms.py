@@ -3,10 +3,13 @@
 The alarm monitor owns the arm's list (``schema/alarms.py``). What the servo
 detects itself (an e-stop put, a command that jumps or leaves the joint soft
 limits) it acts on in the same cycle (``loop.py``) and keeps as a *latch*,
-reported to the monitor on ``Monitor/report`` (again when its cause has gone,
-and again on each list of the monitor's that does not hold it yet: the monitor
-publishes its list on every change and every ``LIST_PERIOD``, so a report lost
-while it was down or restarting is made again on its evidence, not on a timer). The servo follows
+reported to the monitor on ``Monitor/report`` (again when its cause comes or
+goes, and again on each list of the monitor's, whether it holds the latch or
+not yet: the monitor publishes its list on every change and every
+``LIST_PERIOD``, so a report lost on the ``drop`` key, or while the monitor was
+down or restarting, is made again on its evidence, not on a timer). Each
+latch's reports carry the time it latched: the monitor ignores those of a latch
+it has cleared, so a copy still in flight after a clear raises nothing. The servo follows
 the monitor's ``Monitor/alarms``: an alarm that appears there stops the arm (a
 FAULT also switches the servo off), and a latch is released once the monitor
 that listed it no longer does. While any latch or any listed alarm is active,
@@ -22,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
 from collections.abc import Callable
 
 from jara_arm.schema.alarms import ALARM_REPORT, AlarmList, AlarmReport, format_code, is_newer
@@ -36,6 +40,7 @@ class Latch:
 
     alarm: Alarm
     present: bool  # the cause was present when last reported
+    latched: Time  # when: this latch's reports carry it (AlarmReport.latched), a later latch's is later
     acked: Time | None = None  # ``started`` of the monitor whose list held it; None: not listed yet
 
 
@@ -52,11 +57,12 @@ class AlarmState:
         self._report_pub = report_pub
         self._log = log
         self._cause_present = cause_present
+        self._latched_ns = 0  # the last latch's time [ns]: strictly increasing (AlarmReport.latched)
 
     def latch(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
         """Latch the servo's own alarm ``code`` (the first of a code stands) and report it to the monitor."""
         if int(code) not in self.latches:
-            latch = Latch(Alarm(int(code), kind, description), self._cause_present(int(code)))
+            latch = Latch(Alarm(int(code), kind, description), self._cause_present(int(code)), self._now())
             self.latches[int(code)] = latch
             self._log.error("alarm %s %s: %s", format_code(code), kind.value, description)
             self._report(latch)
@@ -68,13 +74,18 @@ class AlarmState:
         if code in self.latches:  # one latch per code: the first one stands until cleared
             self._log.warning("%s (alarm %s already active)", description, format_code(code))
             return
-        latch = Latch(Alarm(code, AlarmType.WARNING, description), False)
+        latch = Latch(Alarm(code, AlarmType.WARNING, description), False, self._now())
         self.latches[code] = latch
         self._log.warning("alarm %s %s: %s", format_code(code), AlarmType.WARNING.value, description)
         self._report(latch)
 
+    def _now(self) -> Time:
+        """A latch's time: now, later than any latch before it (a wall clock may stand or step back)."""
+        self._latched_ns = max(time.time_ns(), self._latched_ns + 1)
+        return Time(self._latched_ns // 1_000_000_000, self._latched_ns % 1_000_000_000)
+
     def _report(self, latch: Latch) -> None:
-        report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value)
+        report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value, latch.latched)
         try:
             self._report_pub.put_message(ALARM_REPORT, report)
         except Exception as exc:  # a report that cannot be sent is sent again later
@@ -96,7 +107,9 @@ class AlarmState:
 
     def adopt(self, alarms: AlarmList, stop: Callable[[Alarm], None]) -> None:
         """Follow the monitor's list: ``stop`` for each alarm new there (not latched here), release the latches
-        it cleared, report again those it does not hold yet (it lost the report, or the list crossed it)."""
+        it cleared, report every other latch again: one it does not hold yet (it lost the report, or the list
+        crossed it), one it holds with the cause's presence now (a lost "cause gone" would keep it from a
+        clear)."""
         if not is_newer(alarms, self._monitor_list):
             return  # published before the one already adopted
         previous = self._monitor_list
@@ -105,6 +118,8 @@ class AlarmState:
         for code, latch in list(self.latches.items()):
             if code in listed:
                 latch.acked = alarms.started
+                latch.present = self._cause_present(code)
+                self._report(latch)
             elif latch.acked == alarms.started:
                 del self.latches[code]
                 self._log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
