@@ -227,3 +227,21 @@ def test_a_lost_cause_gone_report_does_not_keep_an_alarm_and_a_late_copy_does_no
     assert book.report(AlarmReport(unnumbered, False, Service.SERVO.value))  # NO_TIME: never taken as cleared
     book.clear(lambda _c: False)
     assert book.report(AlarmReport(unnumbered, False, Service.SERVO.value))
+
+
+def test_a_new_servo_process_voids_what_the_one_before_it_reported():
+    """A servo that died while its e-stop latch said "cause present" (braking) must not keep 0x01 from every
+    clear for good: the monitor drops the reports of detections made before the new servo started, and keeps
+    those the new one makes."""
+    from jara_arm.schema.alarms import AlarmReport, make_alarm
+    from jara_arm.services.alarm_monitor.book import AlarmBook
+
+    book = AlarmBook()
+    estop, lost = make_alarm(AlarmCode.EMERGENCY_STOP, "e-stop"), make_alarm(AlarmCode.MONITOR_LOST, "lost")
+    book.report(AlarmReport(estop, True, Service.SERVO.value, Time(100, 0)))  # the old servo, braking
+    book.report(AlarmReport(lost, True, Service.SERVO.value, Time(205, 0)))  # the new one's, before its status
+    assert book.clear(lambda _c: False)[0] == []
+    assert book.forget(Service.SERVO.value, Time(200, 0)) == [AlarmCode.EMERGENCY_STOP]
+    cleared, kept = book.clear(lambda _c: False)
+    assert [a.code for a in cleared] == [AlarmCode.EMERGENCY_STOP]
+    assert [a.code for a in kept] == [AlarmCode.MONITOR_LOST]

@@ -55,6 +55,18 @@ class AlarmBook:
         """Whether a service's latest report on ``code`` says its cause is still present."""
         return any(r.present for r in self._reported.get(code, {}).values())
 
+    def forget(self, source: str, since: Time) -> list[int]:
+        """Drop what ``source`` reported of detections before ``since`` (a new process of it started then: what
+        the old one saw of a cause is no evidence now); the codes whose dropped report said the cause present."""
+        present = []
+        for code, by_source in self._reported.items():
+            report = by_source.get(source)
+            if report is not None and _ns(report.latched) < _ns(since):
+                del by_source[source]
+                if report.present:
+                    present.append(code)
+        return present
+
     def clear(self, detected: Callable[[int], bool]) -> tuple[list[Alarm], list[Alarm]]:
         """Clear every alarm whose cause has gone; ``detected(code)``: the monitor's own view.
 

@@ -91,6 +91,7 @@ class Monitor:
         self._kinematics = Kinematics(robot, seed_table=0)  # FK only
         self._settings: MotionSettings | None = None
         self._judged: tuple[object, ...] | None = None  # the (joints, limits, settings) judged last
+        self._servo_started: Time | None = None  # ``ServoStatus.started`` of the servo process heard last
         self._settings_seq = 0  # counts MotionSettings received
         self._base = pin.SE3.Identity()  # B: robot frame seen from the arm frame
         self._tool = np.zeros(3)  # [m] control point in the flange frame (translation of C)
@@ -260,6 +261,12 @@ class Monitor:
             self._raise(code, f"the {service.value} service hangs while its liveliness token is up: {why}")
 
     def _on_status(self, st: messages.ServoStatus) -> None:
+        if st.started != self._servo_started:
+            if self._servo_started is not None:  # a new servo process: the causes its predecessor saw died with it
+                for code in self.book.forget(Service.SERVO.value, st.started):
+                    log.info("alarm %s: its cause as the servo before this one reported it is void (the servo "
+                             "restarted); a clear decides on the new servo's reports", format_code(code))
+            self._servo_started = st.started
         if st.softLimitJoint:
             self._joint.set_limits(st.softLimitJoint)
         axis = self._overload.update(st.effort)
