@@ -28,14 +28,21 @@ class Time:
     nsec: int  # [ns], 0 .. 999 999 999
 
     @classmethod
-    def from_seconds(cls, t: float) -> "Time":
-        ns = int(round(t * 1e9))
+    def from_ns(cls, ns: int) -> "Time":
+        """From ``ns`` [ns] since the epoch."""
         return cls(ns // 1_000_000_000, ns % 1_000_000_000)
 
     @classmethod
+    def from_seconds(cls, t: float) -> "Time":
+        return cls.from_ns(int(round(t * 1e9)))
+
+    @classmethod
     def now(cls) -> "Time":
-        ns = _time.time_ns()
-        return cls(ns // 1_000_000_000, ns % 1_000_000_000)
+        return cls.from_ns(_time.time_ns())
+
+    def to_ns(self) -> int:
+        """[ns] since the epoch: exact, for ordering (``to_seconds`` rounds)."""
+        return self.sec * 1_000_000_000 + self.nsec
 
     def to_seconds(self) -> float:
         return self.sec + self.nsec * 1e-9

@@ -45,7 +45,7 @@ class AlarmBook:
     def report(self, report: AlarmReport) -> bool:
         """A service's report: its cause's presence is noted; True if the alarm is new. A report of a
         detection already cleared changes nothing (False)."""
-        latched = _ns(report.latched)
+        latched = report.latched.to_ns()
         if latched and latched <= self._cleared.get((report.alarm.code, report.source), 0):
             return False
         self._reported.setdefault(report.alarm.code, {})[report.source] = report
@@ -61,7 +61,7 @@ class AlarmBook:
         present = []
         for code, by_source in self._reported.items():
             report = by_source.get(source)
-            if report is not None and _ns(report.latched) < _ns(since):
+            if report is not None and report.latched.to_ns() < since.to_ns():
                 del by_source[source]
                 if report.present:
                     present.append(code)
@@ -80,9 +80,5 @@ class AlarmBook:
                 cleared.append(self._alarms.pop(code))
                 for source, report in self._reported.pop(code, {}).items():
                     key = (code, source)
-                    self._cleared[key] = max(self._cleared.get(key, 0), _ns(report.latched))
+                    self._cleared[key] = max(self._cleared.get(key, 0), report.latched.to_ns())
         return cleared, kept
-
-
-def _ns(t: Time) -> int:
-    return t.sec * 1_000_000_000 + t.nsec

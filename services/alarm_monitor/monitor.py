@@ -368,4 +368,4 @@ class Monitor:
         """The list now; ``tm`` strictly increases, so that a newer list always compares newer."""
         ns = max(time.time_ns(), self._last_tm_ns + 1)
         self._last_tm_ns = ns
-        return AlarmList(Time(ns // 1_000_000_000, ns % 1_000_000_000), self.started, self.book.alarms)
+        return AlarmList(Time.from_ns(ns), self.started, self.book.alarms)

@@ -82,7 +82,7 @@ class AlarmState:
     def _now(self) -> Time:
         """A latch's time: now, later than any latch before it (a wall clock may stand or step back)."""
         self._latched_ns = max(time.time_ns(), self._latched_ns + 1)
-        return Time(self._latched_ns // 1_000_000_000, self._latched_ns % 1_000_000_000)
+        return Time.from_ns(self._latched_ns)
 
     def _report(self, latch: Latch) -> None:
         report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value, latch.latched)
@@ -112,20 +112,17 @@ class AlarmState:
         clear)."""
         if not is_newer(alarms, self._monitor_list):
             return  # published before the one already adopted
-        previous = self._monitor_list
         self._monitor_list = alarms
         listed = {a.code for a in alarms.alarms}
         for code, latch in list(self.latches.items()):
-            if code in listed:
-                latch.acked = alarms.started
-                latch.present = self._cause_present(code)
-                self._report(latch)
-            elif latch.acked == alarms.started:
+            if code not in listed and latch.acked == alarms.started:
                 del self.latches[code]
                 self._log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
-            else:  # not listed yet, or by a monitor before this one: tell this one
-                latch.acked = None
-                self._report(latch)
+                continue
+            # Not listed yet, or by a monitor before this one: tell this one; listed: its cause's presence now.
+            latch.acked = alarms.started if code in listed else None
+            latch.present = self._cause_present(code)
+            self._report(latch)
         before = {a.code for a in self.monitor_alarms}
         self.monitor_alarms = alarms.alarms
         for alarm in alarms.alarms:

@@ -559,7 +559,7 @@ class ServoLoop:
         law = self.law
         self._status_seq += 1
         return messages.ServoStatus(
-            Time(tm_ns // 1_000_000_000, tm_ns % 1_000_000_000), self.servo_on, bool(self.state_bits & _MOVING),
+            Time.from_ns(tm_ns), self.servo_on, bool(self.state_bits & _MOVING),
             self.alarmed, len(law.fifo), law.consumed, self.received, self.underruns,
             tuple(self.fb_vel.tolist()), tuple(self.fb_eff.tolist()), tuple(law.q.tolist()),
             law.soft_limits, tuple(self.fb_pos.tolist()), self._started, self._status_seq)
