@@ -8,11 +8,11 @@ Everything here lives under ``JARA_ARM/<arm>/Monitor/``:
   service forward these two operations here, so that every interface agrees.
 * ``Monitor/alarms`` (publisher, on every change and at 2 Hz; also a
   queryable that answers the current one): :class:`AlarmList`, the whole list.
-* ``Monitor/report`` (subscriber): :class:`AlarmReport` that a service puts
-  when it detects an alarm itself, again when its cause comes or goes, and
-  again on each list of the monitor's that holds it (``drop``: a lost "cause
-  gone" must not keep the alarm); the monitor ignores the reports of a
-  detection it has cleared (``latched``).
+* ``Servo/status`` (subscriber, ``schema.messages.ServoStatus``): what the
+  servo detected itself and holds (``latches``, each with whether its cause is
+  still there), in every status it makes; the monitor adopts each newer status's
+  latches as the servo's evidence, and ignores a latch it has cleared
+  (``ServoLatch.latched``) that a status made before the clear still carries.
 * ``heartbeat/<service>`` (subscriber): :class:`Heartbeat` that every service
   publishes every ``Health.heartbeat_period`` (``services/runtime/timing.py``) from a real-time thread of its own.
   A liveliness token shows connectivity, not health: a stopped or starved
@@ -117,7 +117,7 @@ class AlarmList:
     alarms: tuple[Alarm, ...] = wire(w.ALARM_SEQ, doc="oldest first")
 
 
-#: No time said (``AlarmReport.latched`` of a source that does not number its detections).
+#: No time said: the times of :data:`NO_LIST`.
 NO_TIME = Time(0, 0)
 
 #: No monitor's list: what ``Monitor/copy`` answers before the servo adopted one, and what a caller of
@@ -148,26 +148,11 @@ class Heartbeat:
     tid: int = wire(w.ULONG, doc="the heartbeat thread's id (0: not said)", default=0)
 
 
-@dataclasses.dataclass(frozen=True)
-class AlarmReport:
-    """``Monitor/report``: what a service detected, and whether its cause is still there."""
-
-    alarm: Alarm = wire(w.ALARM)
-    present: bool = wire(w.BOOLEAN, doc="the cause is still present")  # False: clearAlarms may clear it
-    source: str = wire(w.STRING, doc="the reporting service")  # a Service value
-    # Which detection: a report is sent again on every list that holds it (one lost must not keep the alarm
-    # from a clear), so the monitor must tell a cleared detection's late copy from a new detection.
-    latched: Time = wire(w.TIME, doc="when the source detected it: every report of one detection carries the "
-                         "same, a later detection a later one (0: not said; never taken for a cleared one)",
-                         default=NO_TIME)
-
-
 ALARM_LIST = struct(AlarmList, strict=False, doc="Internal: the alarm monitor's list of active alarms, Monitor/alarms.")
-ALARM_REPORT = struct(AlarmReport, strict=False, doc="Internal: a service -> the alarm monitor, Monitor/report.")
 HEARTBEAT = struct(Heartbeat, strict=False, doc="Internal: every service -> the alarm monitor, heartbeat/<service>.")
 
 #: The Common operations the alarm monitor serves at ``Monitor/Common/<op>``.
 MONITOR_OPERATIONS: Mapping[str, Operation] = MappingProxyType(
     {name: COMMON[name] for name in (OP.clearAlarms, OP.getActiveAlarm)})
 
-MESSAGES: tuple[StructType[Any], ...] = (ALARM_LIST, ALARM_REPORT, HEARTBEAT)
+MESSAGES: tuple[StructType[Any], ...] = (ALARM_LIST, HEARTBEAT)

@@ -35,7 +35,7 @@ def _message_types() -> Mapping[str, StructType[Any]]:
         (a.state, messages.STATE_MESSAGE), (a.alarm, messages.ALARM_EVENT), (a.log(), messages.LOG_RECORD),
         (a.servo_status, messages.SERVO_STATUS), (a.planner_progress, planner.PLANNER_PROGRESS),
         (a.servo_health, messages.LOOP_HEALTH), (a.monitor_alarms, alarms.ALARM_LIST),
-        (a.monitor_report, alarms.ALARM_REPORT), (a.command_settings, planner.MOTION_SETTINGS),
+        (a.command_settings, planner.MOTION_SETTINGS),
         (a.heartbeat(), alarms.HEARTBEAT), (a.servo_world, messages.SERVO_WORLD), (a.planner_path, planner.PLANNED_PATH),
         (a.servo_motion, motion.MOTION_PROGRESS),
         *((a.traced(q), messages.CALL_TRACE) for q in (*(a.interface(i) for i in Interface), a.servo_common(),

@@ -213,10 +213,12 @@ class ArmKeys:
 
     # -- internal, between services (documented in the generated schema) ----------
     @property
-    @_key('publisher (internal)', 'servo', '`ServoStatus`, every 10 cycles (every 100, and on any change, while settled at rest)',
+    @_key('publisher (internal)', 'servo', '`ServoStatus`, every 10 cycles (every 100, and on any change, while '
+          'settled at rest; at once when one of its latched alarms or their causes comes or goes)',
           KeyEncoding.MSGPACK, Traffic.CONTROL)
     def servo_status(self) -> str:
-        """``ServoStatus`` from the servo at 100 Hz while it moves: FIFO, velocities, efforts."""
+        """``ServoStatus`` from the servo at 100 Hz while it moves: FIFO, velocities, efforts, and the alarms it
+        latched itself (the alarm monitor's evidence of them)."""
         return f"{self.root}/Servo/status"
 
     @property
@@ -304,15 +306,6 @@ class ArmKeys:
     def monitor_alarms(self) -> str:
         """``AlarmList`` from the alarm monitor on every change and at 2 Hz; a get answers it too."""
         return f"{self.root}/Monitor/alarms"
-
-    @property
-    @_key('subscriber (internal)', 'alarm monitor',
-          '`AlarmReport` from the services: raised, its cause come or gone, and again on each `Monitor/alarms`',
-          KeyEncoding.MSGPACK, Traffic.SAFETY)
-    def monitor_report(self) -> str:
-        """``AlarmReport`` from any service to the alarm monitor: raised, its cause come or gone, and again on
-        each list of the monitor's."""
-        return f"{self.root}/Monitor/report"
 
     @property
     @_key('queryable (internal)', 'servo', 'the `AlarmList` the servo holds: what a restarted monitor takes over',

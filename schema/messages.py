@@ -66,6 +66,20 @@ class LogRecord:
 
 
 @dataclasses.dataclass(frozen=True)
+class ServoLatch:
+    """An alarm the servo detected itself and holds (``ServoStatus.latches``) until the monitor clears it."""
+
+    alarm: Alarm = wire(w.ALARM)
+    present: bool = wire(w.BOOLEAN, doc="its cause is still there (an e-stop's while the arm brakes): "
+                         "clearAlarms keeps it")
+    # A status made before a clear still carries the latch it cleared: the monitor tells it from a new one by this.
+    latched: Time = wire(w.TIME, doc="when the servo latched it: the same in every status, a later latch's later")
+
+
+SERVO_LATCH = struct(ServoLatch, strict=False, doc="Internal: an alarm the servo latched itself, in ServoStatus.")
+
+
+@dataclasses.dataclass(frozen=True)
 class ServoStatus:
     """``Servo/status``: what the planner and the alarm monitor need from the servo loop."""
 
@@ -88,6 +102,9 @@ class ServoStatus:
     #: Every status the servo makes counts, published on ``Servo/status`` or carried in a ``PowerReply``.
     seq: int = wire(w.ULONG, doc="counts the statuses of this servo process from 1; 0: not numbered",
                     default=0)
+    #: The servo's own alarms, all of them in every status: the monitor adopts them as the servo's evidence.
+    latches: tuple[ServoLatch, ...] = wire(w.SeqType("ServoLatchSeq", SERVO_LATCH), doc="the alarms the servo "
+                                           "latched itself and holds, oldest first", default=())
 
 
 #: A status no servo made (``seq`` 0, nothing on, nothing measured): "none held" where a field needs a value.
@@ -223,12 +240,15 @@ def servo_status_payload(status: ServoStatus) -> bytes:
         "vel": list(status.vel), "effort": list(status.effort), "target": list(status.target),
         "softLimitJoint": [{"upper": lim.upper, "lower": lim.lower} for lim in status.softLimitJoint],
         "pos": list(status.pos), "started": {"sec": status.started.sec, "nsec": status.started.nsec},
-        "seq": status.seq})
+        "seq": status.seq,
+        "latches": [{"alarm": {"code": x.alarm.code, "type": x.alarm.type.value, "description": x.alarm.description},
+                     "present": x.present, "latched": {"sec": x.latched.sec, "nsec": x.latched.nsec}}
+                    for x in status.latches]})
     return payload
 
 
 #: Every message type, for the generated JSON Schema.
 MESSAGES: tuple[StructType[Any], ...] = (
-    w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_STATUS, LOOP_HEALTH, CALL_TRACE,
+    w.TIMED_JOINT_POS, STATE_MESSAGE, ALARM_EVENT, LOG_RECORD, SERVO_LATCH, SERVO_STATUS, LOOP_HEALTH, CALL_TRACE,
     WORLD_BOX, SERVO_WORLD, FEEDBACK_BLOCK,
 )

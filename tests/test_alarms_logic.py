@@ -18,22 +18,28 @@ from jara_arm.services.runtime.timing import SAME_HOST
 DT = robot("iiwa").cmd_cycle
 
 
+def latched(alarm: object, present: bool, at: float = 100.0) -> object:
+    """A servo latch of ``alarm`` as its status carries it, latched at ``at`` [s]."""
+    from jara_arm.schema.messages import ServoLatch
+
+    return ServoLatch(alarm, present, Time.from_seconds(at))  # type: ignore[arg-type]
+
+
 def test_book_clears_only_what_has_no_cause():
-    from jara_arm.schema.alarms import AlarmReport, make_alarm
+    from jara_arm.schema.alarms import make_alarm
     from jara_arm.services.alarm_monitor.book import AlarmBook
 
     book = AlarmBook()
     estop = make_alarm(AlarmCode.EMERGENCY_STOP, "e-stop")
     jump = make_alarm(AlarmCode.OVERSPEED, "jump")
     assert book.raise_alarm(estop) and not book.raise_alarm(estop)  # one per code
-    assert book.report(AlarmReport(jump, True, Service.SERVO.value))  # still braking
-    assert book.report(AlarmReport(estop, True, Service.SERVO.value)) is False
+    assert book.adopt([latched(jump, True), latched(estop, True, 101)]) == [jump]  # 0x01 was listed already
     cleared, kept = book.clear(lambda code: False)
     assert cleared == [] and kept == [estop, jump]  # the servo says both causes are present
-    book.report(AlarmReport(estop, False, Service.SERVO.value))
+    book.adopt([latched(jump, True), latched(estop, False, 101)])
     cleared, kept = book.clear(lambda code: code == AlarmCode.OVERSPEED)  # the monitor sees one
     assert cleared == [estop] and kept == [jump]
-    book.report(AlarmReport(jump, False, Service.SERVO.value))
+    book.adopt([latched(jump, False)])
     assert book.clear(lambda code: False) == ([jump], []) and book.alarms == ()
 
 
@@ -127,121 +133,94 @@ def test_braking_extrema_and_glide():
     assert np.abs(acc).max() <= np.pi**2 / 2 * 0.02 / 0.2**2 + 1e-9  # a gentle half cosine
 
 
-class Reports:
-    """``Monitor/report`` as a list of what was put on it."""
-
-    def __init__(self) -> None:
-        self.sent: list = []
-
-    def put_message(self, _kind: object, report: object) -> None:
-        self.sent.append(report)
-
-
-def servo_alarms(cause: dict[int, bool]) -> tuple:
-    """A servo's ``AlarmState`` whose causes are ``cause`` (code -> present, mutable), and its reports."""
+def servo_alarms(cause: dict[int, bool]) -> object:
+    """A servo's ``AlarmState`` whose causes are ``cause`` (code -> present, mutable)."""
     import logging
 
     from jara_arm.services.servo.alarms import AlarmState
 
-    reports = Reports()
-    state = AlarmState(reports, logging.LoggerAdapter(logging.getLogger("test")),  # type: ignore[arg-type]
-                       lambda code: cause.get(code, False))
-    return state, reports
+    return AlarmState(logging.LoggerAdapter(logging.getLogger("test")), lambda code: cause.get(code, False))
 
 
-def test_a_latch_is_reported_again_on_each_list_and_released_by_the_monitor_that_cleared_it():
-    """The servo's own alarm goes to the monitor when raised, and again on every list of the monitor's: one
-    that does not hold it (the report was lost, or a new monitor), and one that does, with its cause's presence
-    now (a lost "cause gone" would keep it from a clear). Every report of one latch says when it latched. The
-    monitor that listed it releases it by listing it no more: evidence, not a timer."""
+def test_every_status_carries_every_latch_and_the_monitor_that_cleared_a_latch_releases_it():
+    """The servo's status carries each latch it holds, with its cause's presence when last looked at and the
+    time it latched (the same in every status); ``changed`` asks for a status at once when a latch or its
+    cause comes or goes. The monitor that listed a latch releases it by listing it no more: evidence, not a
+    timer; a list that does not hold it yet (the monitor has not heard of it yet, or is new) does not."""
     from jara_arm.schema.alarms import AlarmList
     from jara_arm.schema.codes import AlarmType
 
     cause = {int(AlarmCode.EMERGENCY_STOP): True}
-    state, reports = servo_alarms(cause)
+    state = servo_alarms(cause)
     stopped: list = []
     state.latch(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, "e-stop")
-    assert len(reports.sent) == 1 and reports.sent[0].present
+    [first_latch] = state.snapshot()
+    assert first_latch.present and state.changed
+    state.changed = False  # a status went out
     first, second = Time(100, 0), Time(200, 0)
-    state.adopt(AlarmList(Time(101, 0), first, ()), stopped.append)  # lost, or the list crossed the report
-    assert len(reports.sent) == 2
-    listed = AlarmList(Time(102, 0), first, (reports.sent[0].alarm,))
+    state.adopt(AlarmList(Time(101, 0), first, ()), stopped.append)  # made before it heard of the latch
+    assert state.snapshot() == (first_latch,) and not state.changed
+    listed = AlarmList(Time(102, 0), first, (first_latch.alarm,))
     state.adopt(listed, stopped.append)
-    cause.clear()  # the arm has stopped: the cause has gone, and that report is lost
-    state.adopt(dataclasses.replace(listed, tm=Time(103, 0)), stopped.append)
-    assert [r.present for r in reports.sent] == [True, True, True, False]
+    state.look()
+    assert not state.changed  # nothing new to say
+    cause.clear()  # the arm has stopped: the cause has gone
+    state.look()
+    assert state.changed and state.snapshot() == (dataclasses.replace(first_latch, present=False),)
+    state.changed = False
     state.adopt(dataclasses.replace(listed, tm=Time(102, 5)), stopped.append)  # older than the one held
-    assert len(reports.sent) == 4 and not stopped  # the servo stopped for it already
-    assert len({r.latched for r in reports.sent}) == 1  # one latch
+    assert not stopped  # the servo stopped for it already
     state.adopt(AlarmList(Time(50, 0), second, ()), stopped.append)  # a new monitor (its clock may lag)
-    assert len(reports.sent) == 5 and int(AlarmCode.EMERGENCY_STOP) in state.latches
-    state.adopt(AlarmList(Time(51, 0), second, (reports.sent[0].alarm,)), stopped.append)
+    assert int(AlarmCode.EMERGENCY_STOP) in state.latches and not state.changed
+    state.adopt(AlarmList(Time(51, 0), second, (first_latch.alarm,)), stopped.append)
     state.adopt(AlarmList(Time(52, 0), second, ()), stopped.append)  # the monitor that listed it cleared it
-    assert len(reports.sent) == 6 and not state.latches
+    assert not state.latches and state.snapshot() == () and state.changed
     state.latch(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, "e-stop again")
-    assert reports.sent[-1].latched.to_seconds() > reports.sent[0].latched.to_seconds()  # a new latch, later
+    assert state.snapshot()[0].latched.to_ns() > first_latch.latched.to_ns()  # a new latch, later
 
 
-def test_a_lost_cause_gone_report_does_not_keep_an_alarm_and_a_late_copy_does_not_raise_it_again():
-    """The servo's alarms and the monitor's book together, ``Monitor/report`` losing what the test says (it is
-    ``drop``): CI run 50 saw an e-stop kept "cause still present" from every clearAlarms for 5 s, its one
-    "cause gone" report lost."""
-    from jara_arm.schema.alarms import AlarmList, AlarmReport, make_alarm
+def test_a_lost_status_does_not_keep_an_alarm_and_an_old_one_does_not_raise_it_again():
+    """The servo's alarms and the monitor's book together, the statuses (``drop``) lost or late as the test
+    says: CI run 50 saw an e-stop kept "cause still present" from every clearAlarms for 5 s, its one "cause
+    gone" report lost; a status made before a clear still carries the latch cleared."""
+    from jara_arm.schema.alarms import AlarmList
     from jara_arm.schema.codes import AlarmType
     from jara_arm.services.alarm_monitor.book import AlarmBook
 
     book, started, tm = AlarmBook(), Time(100, 0), [0]
     cause = {int(AlarmCode.EMERGENCY_STOP): True}  # braking
-    state, reports = servo_alarms(cause)
-
-    def deliver() -> None:
-        for report in reports.sent:
-            book.report(report)
-        reports.sent.clear()
+    state = servo_alarms(cause)
 
     def publish() -> None:  # the monitor's list, on a change or LIST_PERIOD, adopted by the servo
         tm[0] += 1
         state.adopt(AlarmList(Time(100, tm[0]), started, book.alarms), lambda _a: None)
 
     state.latch(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, "e-stop")
-    deliver()
+    book.adopt(state.snapshot())
     publish()
     cause.clear()
-    state.report_latches()  # the arm stopped: "cause gone", lost
-    reports.sent.clear()
+    state.look()
+    old = state.snapshot()  # the arm stopped: "cause gone", this status lost
     assert book.clear(lambda _c: False)[0] == []  # kept: the monitor still believes the cause present
-    publish()  # the next list: the servo says again where the cause stands
-    copy = list(reports.sent)
-    deliver()
+    book.adopt(state.snapshot())  # the next status says again where the cause stands
     cleared, kept = book.clear(lambda _c: False)
     assert [a.code for a in cleared] == [AlarmCode.EMERGENCY_STOP] and kept == []
-    for report in copy:  # a copy still in flight at the clear: a cleared latch, ignored
-        assert book.report(report) is False
-    assert book.alarms == ()
+    assert book.adopt(old) == [] and book.alarms == ()  # made before the clear: a cleared latch, ignored
     publish()  # the servo releases its latch: the monitor that listed it no longer does
-    assert not state.latches and reports.sent == []
+    assert not state.latches
     state.latch(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, "a new e-stop")
-    deliver()
-    assert [a.code for a in book.alarms] == [AlarmCode.EMERGENCY_STOP]  # a new latch is a new alarm
-    unnumbered = make_alarm(AlarmCode.MOTION_NOT_COMPLETED, "from a source that does not number them")
-    assert book.report(AlarmReport(unnumbered, False, Service.SERVO.value))  # NO_TIME: never taken as cleared
-    book.clear(lambda _c: False)
-    assert book.report(AlarmReport(unnumbered, False, Service.SERVO.value))
+    assert book.adopt(state.snapshot()) and [a.code for a in book.alarms] == [AlarmCode.EMERGENCY_STOP]
 
 
-def test_a_new_servo_process_voids_what_the_one_before_it_reported():
+def test_a_new_servo_process_voids_what_the_one_before_it_latched():
     """A servo that died while its e-stop latch said "cause present" (braking) must not keep 0x01 from every
-    clear for good: the monitor drops the reports of detections made before the new servo started, and keeps
-    those the new one makes."""
-    from jara_arm.schema.alarms import AlarmReport, make_alarm
+    clear for good: the first status of the new servo says all that the servo holds, and that is nothing."""
+    from jara_arm.schema.alarms import make_alarm
     from jara_arm.services.alarm_monitor.book import AlarmBook
 
     book = AlarmBook()
-    estop, lost = make_alarm(AlarmCode.EMERGENCY_STOP, "e-stop"), make_alarm(AlarmCode.MONITOR_LOST, "lost")
-    book.report(AlarmReport(estop, True, Service.SERVO.value, Time(100, 0)))  # the old servo, braking
-    book.report(AlarmReport(lost, True, Service.SERVO.value, Time(205, 0)))  # the new one's, before its status
+    estop = make_alarm(AlarmCode.EMERGENCY_STOP, "e-stop")
+    book.adopt([latched(estop, True)])  # the old servo, braking
     assert book.clear(lambda _c: False)[0] == []
-    assert book.forget(Service.SERVO.value, Time(200, 0)) == [AlarmCode.EMERGENCY_STOP]
-    cleared, kept = book.clear(lambda _c: False)
-    assert [a.code for a in cleared] == [AlarmCode.EMERGENCY_STOP]
-    assert [a.code for a in kept] == [AlarmCode.MONITOR_LOST]
+    book.adopt([])  # the new servo
+    assert book.clear(lambda _c: False) == ([estop], [])

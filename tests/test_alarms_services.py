@@ -23,10 +23,12 @@ from collections.abc import Iterator
 import pytest
 import zenoh
 
-from jara_arm.schema.alarms import ALARM_LIST, ALARM_REPORT, AlarmEventKind, AlarmReport, format_code
+from jara_arm.schema.alarms import ALARM_LIST, AlarmEventKind, format_code
 from jara_arm.schema.codes import AlarmCode, AlarmType, ReturnCode, StateBit
 from jara_arm.schema.keys import Service
+from jara_arm.schema.messages import SERVO_STATUS, ServoLatch
 from jara_arm.schema.operations import OP
+from jara_arm.schema.types import Time
 from jara_arm.services.runtime.timing import SAME_HOST
 from jara_arm.services.runtime.wire import decode_sample
 
@@ -147,46 +149,47 @@ def test_a_service_killed_or_hung_mid_motion_is_a_fault(arm: AlarmArm, service: 
 
 
 def kill_servo_while_braking(arm: AlarmArm) -> bool:
-    """An e-stop mid-motion, and the servo SIGKILLed as soon as it reports its latch's cause present (the arm
-    brakes); back once the launcher's new servo is up. True if the monitor heard no "cause gone" from the dead
-    servo (the kill came while it braked), False if the kill was late."""
+    """An e-stop mid-motion, and the servo SIGKILLed as soon as its status says its latch's cause is present
+    (the arm brakes); back once the launcher's new servo is up. True if no status of the dead servo said the
+    cause had gone (the kill came while it braked), False if the kill was late."""
     start_long_motion(arm)
-    reports = arm.session.declare_subscriber(arm.keys.monitor_report, zenoh.handlers.FifoChannel(256))
+    statuses = arm.session.declare_subscriber(arm.keys.servo_status, zenoh.handlers.FifoChannel(1024))
     try:
         arm.session.put(arm.keys.estop, b"")
-
-        def estop_reports() -> list[AlarmReport]:
-            got = [decode_sample(ALARM_REPORT, s) for s in iter(reports.try_recv, None)]
-            return [r for r in got if r.alarm.code == AlarmCode.EMERGENCY_STOP and r.source == Service.SERVO.value]
-
-        seen: list[AlarmReport] = []
+        started: list[Time] = []  # of the servo that is killed: its first status's
+        seen: list[ServoLatch] = []  # the e-stop latch in every status of that servo
 
         def heard_present() -> bool:
-            seen.extend(estop_reports())
-            return any(r.present for r in seen)
+            for sample in iter(statuses.try_recv, None):
+                status = decode_sample(SERVO_STATUS, sample)
+                started[:] = started or [status.started]
+                if status.started == started[0]:
+                    seen.extend(x for x in status.latches if x.alarm.code == AlarmCode.EMERGENCY_STOP)
+            return any(x.present for x in seen)
 
-        wait_until(heard_present, 5.0, 0.001, "the servo's report of its e-stop latch, its cause present")
+        wait_until(heard_present, 5.0, 0.001, "the servo's status with its e-stop latch, its cause present")
         mark = len(arm.proc.lines)
         os.kill(arm.pid(Service.SERVO), signal.SIGKILL)
         arm.proc.wait_for_line("died with SIGKILL; restarting", timeout=5, start=mark)
         arm.proc.wait_for_line("arm0/servo: servo up", timeout=20, start=mark)
         wait_alive(arm.session, "arm0", [Service.SERVO], timeout=10)
-        seen += estop_reports()
+        heard_present()
         return seen[-1].present
     finally:
-        reports.undeclare()
+        statuses.undeclare()
 
 
 def test_a_servo_killed_while_braking_for_an_e_stop_leaves_no_cause_behind(arm: AlarmArm):
-    """The servo reports its e-stop latch's cause present while the arm brakes. Killed then, it never says the
-    cause has gone: the monitor drops what a servo process reported once a new one runs, so the alarms clear
-    and the arm works again (before, 0x01 stayed "cause still present" until the monitor restarted)."""
+    """The servo's status says its e-stop latch's cause is present while the arm brakes. Killed then, it never
+    says the cause has gone: the monitor takes a new servo process's status for the whole of the servo's
+    latches, so the alarms clear and the arm works again (before, 0x01 stayed "cause still present" until the
+    monitor restarted)."""
     for _ in range(3):  # a kill that came after the arm stopped proves nothing: again
         mark = len(arm.proc.lines)
         braking = kill_servo_while_braking(arm)
         check_back_to_work(arm)
         if braking:
-            arm.proc.wait_for_line("alarm 0x01: its cause as the servo before this one reported it is void",
+            arm.proc.wait_for_line("alarm 0x01: its cause as the servo before this one saw it is void",
                                    timeout=5, start=mark)
             return
     pytest.fail("the servo was never killed while it braked, in 3 tries")

@@ -103,7 +103,7 @@ WATCHED = [ARM.state, ARM.alarm, ARM.log(Service.SERVO), ARM.log(), ARM.monitor_
            ARM.servo_health, ARM.servo_world]
 #: The 1 kHz streams and the other high-rate or internal ones: MessagePack.
 FAST = [ARM.pos_feedback, ARM.pos_cmd, ARM.pos_target, ARM.servo_status, ARM.servo_motion, ARM.heartbeat(Service.COMMAND),
-        ARM.planner_progress, ARM.monitor_report, ARM.alarm_copy, ARM.planner_path]
+        ARM.planner_progress, ARM.alarm_copy, ARM.planner_path]
 QUERYABLES = [ARM.interface(Interface.COMMON, OP.getState), ARM.interface(Interface.MIDDLE, OP.setSpeedJoint),
               ARM.servo_common(OP.servoON), ARM.monitor_common(OP.clearAlarms), ARM.planner_plan,
               ARM.planner_control, ARM.servo_trajectory, ARM.servo_motion_control, ARM.servo_power]

@@ -62,7 +62,7 @@ def test_no_client_may_stand_in_for_a_service(role: Role) -> None:
         assert not any(zenoh.KeyExpr(k).intersects(arms) for k in rights.get(message, [])), f"{role}: {message}"
     puts = set(rights["put"])
     assert KEYS.estop in puts  # anyone who can see the arm may stop it
-    for internal in (KEYS.servo_motion, KEYS.heartbeat(Service.SERVO), KEYS.heartbeat(), KEYS.monitor_report,
+    for internal in (KEYS.servo_motion, KEYS.heartbeat(Service.SERVO), KEYS.heartbeat(), KEYS.servo_status,
                      KEYS.command_settings, KEYS.planner_progress):
         assert internal not in puts
     for internal in (KEYS.servo_trajectory, KEYS.servo_motion_control, KEYS.servo_power, KEYS.planner_plan,

@@ -242,6 +242,12 @@ def test_fast_status_encoder_equals_the_generic_one():
                               (0.1, -0.2), (1.5, -30.25), (0.0, 1e-9), (LimitValue(2.9, -2.9), LimitValue(1.0, -1.5)),
                               (0.01, 0.02), Time(1_795_331_200, 7), 42)
     assert messages.servo_status_payload(st) == codec.encode_message(messages.SERVO_STATUS, st)
+    latches = (messages.ServoLatch(Alarm(0x01, AlarmType.FAULT, "emergency stop"), True, Time(1_795_331_201, 9)),
+               messages.ServoLatch(Alarm(0x420, AlarmType.WARNING, "motions [3] discarded"), False,
+                                   Time(1_795_331_202, 0)))
+    st = dataclasses.replace(st, latches=latches)
+    assert messages.servo_status_payload(st) == codec.encode_message(messages.SERVO_STATUS, st)
+    assert codec.decode_message(messages.SERVO_STATUS, messages.servo_status_payload(st)) == st
 
 
 def test_the_newer_servo_status_is_the_later_one_of_a_process_or_of_a_later_process():
@@ -302,7 +308,6 @@ def test_keys():
     assert keys.parse_log(k.log(keys.Service.COMMAND)) == ("arm-1_B", "command")
     assert k.monitor_common("clearAlarms") == "JARA_ARM/arm-1_B/Monitor/Common/clearAlarms"
     assert k.monitor_alarms == "JARA_ARM/arm-1_B/Monitor/alarms"
-    assert k.monitor_report == "JARA_ARM/arm-1_B/Monitor/report"
     assert k.command_settings == "JARA_ARM/arm-1_B/Command/settings"
     assert keys.any_arm_monitor_common("getActiveAlarm") == "JARA_ARM/*/Monitor/Common/getActiveAlarm"
     assert keys.any_arm_alarm() == "JARA_ARM/*/alarm" and keys.arm_of(k.alarm) == "arm-1_B"

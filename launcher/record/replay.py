@@ -7,8 +7,7 @@ key's declared encoding (JSON or MessagePack, ``schema/keys.py``) and labelled
 with it.
 
 Never replayed: what the services subscribe to (the keys of kind ``subscriber``
-in the key table: ``Servo/posCmd``, ``estop``,
-``Monitor/report``), which would move or stop a real arm; keys outside the key
+in the key table: ``Servo/posCmd``, ``estop``), which would move or stop a real arm; keys outside the key
 table. The call traces (``trace/...``) go out as the publications they are,
 never as queries. Replay refuses to start while an arm of the recording is
 alive on the network (its liveliness tokens ``JARA_ARM/<arm>/alive/*``), and
@@ -173,5 +172,5 @@ COMMAND = Command(
     description="Publish the messages of an MCAP recording on their keys at their recorded pace (divided "
     "by --speed), each in its key's encoding, for echo, plot, view or any subscriber. Refuses while "
     "a recorded arm is alive on the network. Never replays what the services subscribe to "
-    "(Servo/posCmd, estop, Monitor/report); call traces go out as publications, "
+    "(Servo/posCmd, estop); call traces go out as publications, "
     "never as queries.")

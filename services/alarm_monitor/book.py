@@ -6,27 +6,28 @@ work to that thread).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
-from jara_arm.schema.alarms import AlarmReport
-from jara_arm.schema.types import Alarm, Time
+from jara_arm.schema.messages import ServoLatch
+from jara_arm.schema.types import Alarm
 
 
 class AlarmBook:
     """Active alarms by code (one per code, the first description wins), oldest first.
 
-    A code may be raised by the monitor's own detectors and reported by other
-    services; its cause is present while any of them says so: the detector's
-    own state (asked at clear time) or the latest report of each source.
-    A source sends its reports again (a lost one must not keep an alarm), so
-    the reports of a detection already cleared (``AlarmReport.latched``) are
-    ignored: a copy in flight at the clear does not raise the alarm again.
+    A code may be raised by the monitor's own detectors and latched by the servo
+    (its status carries its latches, every one in every status); its cause is
+    present while either says so: the detector's own state (asked at clear
+    time) or the servo's newest status. A status made before a clear still
+    carries the latch cleared, so a latch whose time (``ServoLatch.latched``) is
+    not after the last one cleared of its code is ignored: it does not raise the
+    alarm again.
     """
 
     def __init__(self) -> None:
         self._alarms: dict[int, Alarm] = {}
-        self._reported: dict[int, dict[str, AlarmReport]] = {}  # code -> source -> its latest report
-        self._cleared: dict[tuple[int, str], int] = {}  # (code, source) -> ``latched`` [ns] of the last cleared
+        self._latches: dict[int, ServoLatch] = {}  # by code: the servo's, as its newest status says
+        self._cleared: dict[int, int] = {}  # by code: ``latched`` [ns] of the last servo latch cleared
 
     @property
     def alarms(self) -> tuple[Alarm, ...]:
@@ -42,30 +43,17 @@ class AlarmBook:
         self._alarms[alarm.code] = alarm
         return True
 
-    def report(self, report: AlarmReport) -> bool:
-        """A service's report: its cause's presence is noted; True if the alarm is new. A report of a
-        detection already cleared changes nothing (False)."""
-        latched = report.latched.to_ns()
-        if latched and latched <= self._cleared.get((report.alarm.code, report.source), 0):
-            return False
-        self._reported.setdefault(report.alarm.code, {})[report.source] = report
-        return self.raise_alarm(report.alarm)
+    def adopt(self, latches: Iterable[ServoLatch]) -> list[Alarm]:
+        """The servo's latches now (a newer status's: what it no longer holds says nothing any more); the
+        alarms they added to the list. A latch already cleared is left out."""
+        self._latches = {latch.alarm.code: latch for latch in latches
+                         if latch.latched.to_ns() > self._cleared.get(latch.alarm.code, 0)}
+        return [latch.alarm for latch in self._latches.values() if self.raise_alarm(latch.alarm)]
 
-    def cause_reported(self, code: int) -> bool:
-        """Whether a service's latest report on ``code`` says its cause is still present."""
-        return any(r.present for r in self._reported.get(code, {}).values())
-
-    def forget(self, source: str, since: Time) -> list[int]:
-        """Drop what ``source`` reported of detections before ``since`` (a new process of it started then: what
-        the old one saw of a cause is no evidence now); the codes whose dropped report said the cause present."""
-        present = []
-        for code, by_source in self._reported.items():
-            report = by_source.get(source)
-            if report is not None and report.latched.to_ns() < since.to_ns():
-                del by_source[source]
-                if report.present:
-                    present.append(code)
-        return present
+    def cause_latched(self, code: int) -> bool:
+        """Whether the servo's newest status says the cause of its latch ``code`` is still present."""
+        latch = self._latches.get(code)
+        return latch is not None and latch.present
 
     def clear(self, detected: Callable[[int], bool]) -> tuple[list[Alarm], list[Alarm]]:
         """Clear every alarm whose cause has gone; ``detected(code)``: the monitor's own view.
@@ -74,11 +62,11 @@ class AlarmBook:
         """
         cleared, kept = [], []
         for code, alarm in list(self._alarms.items()):
-            if detected(code) or self.cause_reported(code):
+            if detected(code) or self.cause_latched(code):
                 kept.append(alarm)
-            else:
-                cleared.append(self._alarms.pop(code))
-                for source, report in self._reported.pop(code, {}).items():
-                    key = (code, source)
-                    self._cleared[key] = max(self._cleared.get(key, 0), report.latched.to_ns())
+                continue
+            cleared.append(self._alarms.pop(code))
+            latch = self._latches.pop(code, None)
+            if latch is not None:
+                self._cleared[code] = max(self._cleared.get(code, 0), latch.latched.to_ns())
         return cleared, kept

@@ -27,7 +27,6 @@ from jara_arm.robots import RobotModel
 from jara_arm.schema import messages
 from jara_arm.schema.alarms import (
     ALARM_LIST,
-    ALARM_REPORT,
     HEARTBEAT,
     AlarmEventKind,
     AlarmList,
@@ -91,7 +90,7 @@ class Monitor:
         self._kinematics = Kinematics(robot, seed_table=0)  # FK only
         self._settings: MotionSettings | None = None
         self._judged: tuple[object, ...] | None = None  # the (joints, limits, settings) judged last
-        self._servo_started: Time | None = None  # ``ServoStatus.started`` of the servo process heard last
+        self._servo_status: messages.ServoStatus | None = None  # the newest heard
         self._settings_seq = 0  # counts MotionSettings received
         self._base = pin.SE3.Identity()  # B: robot frame seen from the arm frame
         self._tool = np.zeros(3)  # [m] control point in the flange frame (translation of C)
@@ -101,10 +100,9 @@ class Monitor:
         self._entities = Entities()
         enter = self._entities.enter_context
         self._estop = enter(session.declare_subscriber(keys.estop, fifo(64)))
-        self._reports = enter(session.declare_subscriber(keys.monitor_report, fifo(1024)))
         self._alive = enter(session.liveliness().declare_subscriber(keys.alive(), fifo(256), history=True))
-        # Servo/status (100 Hz) carries the measured joints too: Servo/posFeedback (1 kHz) would
-        # cost the monitor and the router ten times the work for no alarm sooner than 10 ms.
+        # Servo/status (100 Hz) carries the servo's latched alarms and the measured joints: Servo/posFeedback
+        # (1 kHz) would cost the monitor and the router ten times the work for no alarm sooner than 10 ms.
         self._status = enter(session.declare_subscriber(keys.servo_status, fifo(256)))
         self._heartbeats = enter(session.declare_subscriber(keys.heartbeat(), fifo(1024)))
         self._settings_sub = enter(session.declare_subscriber(keys.command_settings, ring(1)))
@@ -177,14 +175,6 @@ class Monitor:
             log.error("emergency stop")
             self._raise(AlarmCode.EMERGENCY_STOP, f"emergency stop: a put on {self.keys.estop}")
         self._drain_liveliness(now)
-        while (s := self._reports.try_recv()) is not None:
-            try:
-                report = decode_sample(ALARM_REPORT, s)
-            except WireError as exc:
-                log.error("ignored a malformed alarm report: %s", exc)
-                continue
-            if self.book.report(report):
-                self._raised(report.alarm, f"reported by the {report.source}")
         self._drain_heartbeats(now)
         while (s := self._status.try_recv()) is not None:
             # Working through a backlog (its CPU share was short for a while) is progress, not a hang.
@@ -261,12 +251,17 @@ class Monitor:
             self._raise(code, f"the {service.value} service hangs while its liveliness token is up: {why}")
 
     def _on_status(self, st: messages.ServoStatus) -> None:
-        if st.started != self._servo_started:
-            if self._servo_started is not None:  # a new servo process: the causes its predecessor saw died with it
-                for code in self.book.forget(Service.SERVO.value, st.started):
-                    log.info("alarm %s: its cause as the servo before this one reported it is void (the servo "
-                             "restarted); a clear decides on the new servo's reports", format_code(code))
-            self._servo_started = st.started
+        last = self._servo_status
+        if not messages.is_newer(st, last):
+            return  # made before the one already heard (a servo process before this one)
+        self._servo_status = st
+        if last is not None and st.started != last.started:
+            for latch in last.latches:  # the status of a new process says nothing of the old one's latches
+                if latch.present and latch.alarm.code in self.book:
+                    log.info("alarm %s: its cause as the servo before this one saw it is void (the servo "
+                             "restarted); a clear decides on the new servo's status", format_code(latch.alarm.code))
+        for alarm in self.book.adopt(st.latches):
+            self._raised(alarm, "latched by the servo")
         if st.softLimitJoint:
             self._joint.set_limits(st.softLimitJoint)
         axis = self._overload.update(st.effort)

@@ -2,21 +2,21 @@
 
 The alarm monitor owns the arm's list (``schema/alarms.py``). What the servo
 detects itself (an e-stop put, a command that jumps or leaves the joint soft
-limits) it acts on in the same cycle (``loop.py``) and keeps as a *latch*,
-reported to the monitor on ``Monitor/report`` (again when its cause comes or
-goes, and again on each list of the monitor's, whether it holds the latch or
-not yet: the monitor publishes its list on every change and every
-``LIST_PERIOD``, so a report lost on the ``drop`` key, or while the monitor was
-down or restarting, is made again on its evidence, not on a timer). Each
-latch's reports carry the time it latched: the monitor ignores those of a latch
-it has cleared, so a copy still in flight after a clear raises nothing. The servo follows
-the monitor's ``Monitor/alarms``: an alarm that appears there stops the arm (a
-FAULT also switches the servo off), and a latch is released once the monitor
-that listed it no longer does. While any latch or any listed alarm is active,
-position commands are dropped.
+limits) it acts on in the same cycle (``loop.py``) and keeps as a *latch*. The
+servo's status (``Servo/status``, ``ServoStatus.latches``) carries every latch
+it holds, with whether its cause is still there and when it latched: a status
+goes out at once when a latch or its cause comes or goes, and at least every
+0.1 s besides, so a status lost on the ``drop`` key, or one a restarting monitor
+missed, is replaced by the next one; nothing is reported twice. The monitor
+adopts the latches of each newer status and ignores a latch it has cleared
+that a status made before the clear still carries (``latched``). The servo
+follows the monitor's ``Monitor/alarms``: an alarm that appears there stops the
+arm (a FAULT also switches the servo off), and a latch is released once the
+monitor that listed it no longer does. While any latch or any listed alarm is
+active, position commands are dropped.
 
 :class:`AlarmState` is the bookkeeping of that: which alarms are active, and
-what the monitor is told. Stopping the arm, and whether a cause is still
+what the status says of them. Stopping the arm, and whether a cause is still
 there, are the loop's: it passes them in. Loop thread only, as the rest of the
 loop's state.
 """
@@ -28,44 +28,43 @@ import logging
 import time
 from collections.abc import Callable
 
-from jara_arm.schema.alarms import ALARM_REPORT, AlarmList, AlarmReport, format_code, is_newer
+from jara_arm.schema.alarms import AlarmList, format_code, is_newer
 from jara_arm.schema.codes import AlarmCode, AlarmType
-from jara_arm.schema.keys import Service
+from jara_arm.schema.messages import ServoLatch
 from jara_arm.schema.types import Alarm, Time
-from jara_arm.services.runtime.wire import Publication
 
 @dataclasses.dataclass
 class Latch:
     """An alarm the servo detected itself; it keeps the arm stopped until the monitor clears it."""
 
     alarm: Alarm
-    present: bool  # the cause was present when last reported
-    latched: Time  # when: this latch's reports carry it (AlarmReport.latched), a later latch's is later
+    present: bool  # the cause was present when last looked at (every cycle)
+    latched: Time  # when: every status carries it (ServoLatch.latched), a later latch's is later
     acked: Time | None = None  # ``started`` of the monitor whose list held it; None: not listed yet
 
 
 class AlarmState:
     """The active alarms of one arm's servo (module docstring)."""
 
-    def __init__(self, report_pub: Publication, log: logging.LoggerAdapter[logging.Logger],
-                 cause_present: Callable[[int], bool]) -> None:
-        """``report_pub``: ``Monitor/report``; ``cause_present(code)``: whether the cause of the servo's own
-        alarm ``code`` is still there (the loop's state says)."""
+    def __init__(self, log: logging.LoggerAdapter[logging.Logger], cause_present: Callable[[int], bool]) -> None:
+        """``cause_present(code)``: whether the cause of the servo's own alarm ``code`` is still there (the
+        loop's state says)."""
         self.latches: dict[int, Latch] = {}  # by code: what the servo detected itself
         self.monitor_alarms: tuple[Alarm, ...] = ()  # the alarm monitor's newest list
+        #: A latch, or its cause, came or went since the last status: the next one goes out at once.
+        self.changed = False
         self._monitor_list: AlarmList | None = None
-        self._report_pub = report_pub
         self._log = log
         self._cause_present = cause_present
-        self._latched_ns = 0  # the last latch's time [ns]: strictly increasing (AlarmReport.latched)
+        self._latched_ns = 0  # the last latch's time [ns]: strictly increasing (ServoLatch.latched)
 
     def latch(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
-        """Latch the servo's own alarm ``code`` (the first of a code stands) and report it to the monitor."""
+        """Latch the servo's own alarm ``code`` (the first of a code stands)."""
         if int(code) not in self.latches:
             latch = Latch(Alarm(int(code), kind, description), self._cause_present(int(code)), self._now())
             self.latches[int(code)] = latch
+            self.changed = True
             self._log.error("alarm %s %s: %s", format_code(code), kind.value, description)
-            self._report(latch)
 
     def not_completed(self, motions: list[int], why: str) -> None:
         """The WARNING that accepted motions were discarded before their end (0x420)."""
@@ -74,30 +73,26 @@ class AlarmState:
         if code in self.latches:  # one latch per code: the first one stands until cleared
             self._log.warning("%s (alarm %s already active)", description, format_code(code))
             return
-        latch = Latch(Alarm(code, AlarmType.WARNING, description), False, self._now())
-        self.latches[code] = latch
+        self.latches[code] = Latch(Alarm(code, AlarmType.WARNING, description), False, self._now())
+        self.changed = True
         self._log.warning("alarm %s %s: %s", format_code(code), AlarmType.WARNING.value, description)
-        self._report(latch)
 
     def _now(self) -> Time:
         """A latch's time: now, later than any latch before it (a wall clock may stand or step back)."""
         self._latched_ns = max(time.time_ns(), self._latched_ns + 1)
         return Time.from_ns(self._latched_ns)
 
-    def _report(self, latch: Latch) -> None:
-        report = AlarmReport(latch.alarm, latch.present, Service.SERVO.value, latch.latched)
-        try:
-            self._report_pub.put_message(ALARM_REPORT, report)
-        except Exception as exc:  # a report that cannot be sent is sent again later
-            self._log.warning("could not report alarm %s to the monitor: %s", format_code(latch.alarm.code), exc)
-
-    def report_latches(self) -> None:
-        """Report every latch whose cause came or went."""
-        for code, latch in list(self.latches.items()):
+    def look(self) -> None:
+        """Note whether each latch's cause is still there (every cycle while one is held)."""
+        for code, latch in self.latches.items():
             present = self._cause_present(code)
             if present != latch.present:
                 latch.present = present
-                self._report(latch)
+                self.changed = True
+
+    def snapshot(self) -> tuple[ServoLatch, ...]:
+        """Every latch as the status carries it (``ServoStatus.latches``), oldest first."""
+        return tuple(ServoLatch(latch.alarm, latch.present, latch.latched) for latch in self.latches.values())
 
     def held_list(self) -> AlarmList | None:
         """The monitor's newest list less what was cleared without it: what this servo acts on."""
@@ -107,9 +102,7 @@ class AlarmState:
 
     def adopt(self, alarms: AlarmList, stop: Callable[[Alarm], None]) -> None:
         """Follow the monitor's list: ``stop`` for each alarm new there (not latched here), release the latches
-        it cleared, report every other latch again: one it does not hold yet (it lost the report, or the list
-        crossed it), one it holds with the cause's presence now (a lost "cause gone" would keep it from a
-        clear)."""
+        it cleared (once listed by it: a latch the list does not hold yet is one it has not heard of yet)."""
         if not is_newer(alarms, self._monitor_list):
             return  # published before the one already adopted
         self._monitor_list = alarms
@@ -117,12 +110,10 @@ class AlarmState:
         for code, latch in list(self.latches.items()):
             if code not in listed and latch.acked == alarms.started:
                 del self.latches[code]
+                self.changed = True
                 self._log.info("alarm %s released: the alarm monitor cleared it", format_code(code))
                 continue
-            # Not listed yet, or by a monitor before this one: tell this one; listed: its cause's presence now.
-            latch.acked = alarms.started if code in listed else None
-            latch.present = self._cause_present(code)
-            self._report(latch)
+            latch.acked = alarms.started if code in listed else None  # listed by a monitor before: not by this one
         before = {a.code for a in self.monitor_alarms}
         self.monitor_alarms = alarms.alarms
         for alarm in alarms.alarms:
@@ -143,6 +134,7 @@ class AlarmState:
                 kept.append(latch.alarm)
             else:
                 cleared.append(self.latches.pop(code).alarm)
+                self.changed = True
                 self._log.info("alarm %s cleared", format_code(code))
         return cleared, kept
 

@@ -161,8 +161,8 @@ class ServoLoop:
         self._estop_sub = enter(session.declare_subscriber(keys.estop, zenoh.handlers.FifoChannel(64)))
         self._alarms_sub = enter(session.declare_subscriber(keys.monitor_alarms, zenoh.handlers.FifoChannel(256)))
         self._monitor = MonitorWatch(session, keys, health)  # nobody else can watch the watcher
-        # The servo's own alarms and the monitor's list it follows; Monitor/report carries the former.
-        self.alarm_state = AlarmState(enter(Publication(session, keys.monitor_report)), self._log, self._cause_present)
+        # The servo's own alarms (its status carries them) and the monitor's list it follows.
+        self.alarm_state = AlarmState(self._log, self._cause_present)
         # The feedback and the status are MessagePack built by hand (messages.*_payload), fast.
         self._fb_pub = enter(Publication(session, keys.pos_feedback, Encoding.MSGPACK))
         # The 1 kHz feedback is encoded only while someone subscribes (none of our services do).
@@ -364,8 +364,8 @@ class ServoLoop:
             self._target_pub.publisher.put(messages.timed_joint_pos_payload(tm_ns, law.q.tolist()))
         self._publish_motion()
         if self.alarm_state.latches:  # every cycle: the monitor learns at once that a cause has gone
-            self.alarm_state.report_latches()
-        if (k - self._status_k >= (STATUS_EVERY_AT_REST if settled else STATUS_EVERY)
+            self.alarm_state.look()
+        if (k - self._status_k >= (STATUS_EVERY_AT_REST if settled else STATUS_EVERY) or self.alarm_state.changed
                 or (settled and self._status_changed())):  # moving: the FIFO changes every cycle
             self._status_k = k
             self._publish_status(tm_ns)
@@ -428,7 +428,7 @@ class ServoLoop:
         self._raise(AlarmCode.EMERGENCY_STOP, AlarmType.FAULT, "emergency stop")
 
     def _raise(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
-        """Stop (and for a FAULT switch off) now; latch the alarm and report it to the monitor."""
+        """Stop (and for a FAULT switch off) now; latch the alarm (the next status carries it to the monitor)."""
         cut = self._stop_for(int(code), kind)
         self.alarm_state.latch(code, kind, description)
         if cut is not None:  # after its cause, in the list too
@@ -547,6 +547,7 @@ class ServoLoop:
         law = self.law
         self._status_said = (self.state_bits, len(law.fifo), law.soft_limits)
         self._status_q = law.q
+        self.alarm_state.changed = False
         self._status_pub.put(messages.servo_status_payload(self._status(tm_ns)))
 
     def status_now(self) -> messages.ServoStatus:
@@ -562,7 +563,8 @@ class ServoLoop:
             Time.from_ns(tm_ns), self.servo_on, bool(self.state_bits & _MOVING),
             self.alarmed, len(law.fifo), law.consumed, self.received, self.underruns,
             tuple(self.fb_vel.tolist()), tuple(self.fb_eff.tolist()), tuple(law.q.tolist()),
-            law.soft_limits, tuple(self.fb_pos.tolist()), self._started, self._status_seq)
+            law.soft_limits, tuple(self.fb_pos.tolist()), self._started, self._status_seq,
+            self.alarm_state.snapshot())
 
     # -- the interpolator (schema/motion.py) ------------------------------------------------
     def submit(self, traj: Trajectory) -> MotionReply:
