@@ -37,9 +37,7 @@ from jara_arm.schema.types import Alarm, Time
 class Latch:
     """An alarm the servo detected itself; it keeps the arm stopped until the monitor clears it."""
 
-    alarm: Alarm
-    present: bool  # the cause was present when last looked at (every cycle)
-    latched: Time  # when: every status carries it (ServoLatch.latched), a later latch's is later
+    status: ServoLatch  # as every status carries it: its cause's presence when last looked at (every cycle)
     acked: Time | None = None  # ``started`` of the monitor whose list held it; None: not listed yet
 
 
@@ -61,8 +59,8 @@ class AlarmState:
     def latch(self, code: AlarmCode, kind: AlarmType, description: str) -> None:
         """Latch the servo's own alarm ``code`` (the first of a code stands)."""
         if int(code) not in self.latches:
-            latch = Latch(Alarm(int(code), kind, description), self._cause_present(int(code)), self._now())
-            self.latches[int(code)] = latch
+            alarm = Alarm(int(code), kind, description)
+            self.latches[int(code)] = Latch(ServoLatch(alarm, self._cause_present(int(code)), self._now()))
             self.changed = True
             self._log.error("alarm %s %s: %s", format_code(code), kind.value, description)
 
@@ -73,7 +71,7 @@ class AlarmState:
         if code in self.latches:  # one latch per code: the first one stands until cleared
             self._log.warning("%s (alarm %s already active)", description, format_code(code))
             return
-        self.latches[code] = Latch(Alarm(code, AlarmType.WARNING, description), False, self._now())
+        self.latches[code] = Latch(ServoLatch(Alarm(code, AlarmType.WARNING, description), False, self._now()))
         self.changed = True
         self._log.warning("alarm %s %s: %s", format_code(code), AlarmType.WARNING.value, description)
 
@@ -86,13 +84,13 @@ class AlarmState:
         """Note whether each latch's cause is still there (every cycle while one is held)."""
         for code, latch in self.latches.items():
             present = self._cause_present(code)
-            if present != latch.present:
-                latch.present = present
+            if present != latch.status.present:
+                latch.status = dataclasses.replace(latch.status, present=present)
                 self.changed = True
 
     def snapshot(self) -> tuple[ServoLatch, ...]:
         """Every latch as the status carries it (``ServoStatus.latches``), oldest first."""
-        return tuple(ServoLatch(latch.alarm, latch.present, latch.latched) for latch in self.latches.values())
+        return tuple(latch.status for latch in self.latches.values())
 
     def held_list(self) -> AlarmList | None:
         """The monitor's newest list less what was cleared without it: what this servo acts on."""
@@ -131,9 +129,9 @@ class AlarmState:
         self.monitor_alarms = ()
         for code, latch in list(self.latches.items()):
             if self._cause_present(code):
-                kept.append(latch.alarm)
+                kept.append(latch.status.alarm)
             else:
-                cleared.append(self.latches.pop(code).alarm)
+                cleared.append(self.latches.pop(code).status.alarm)
                 self.changed = True
                 self._log.info("alarm %s cleared", format_code(code))
         return cleared, kept

@@ -219,7 +219,7 @@ class ServoLoop:
     @property
     def alarms(self) -> tuple[Alarm, ...]:
         """The servo's own latches (what ``getActiveAlarm`` says when the monitor is silent)."""
-        return tuple(latch.alarm for latch in list(self.alarm_state.latches.values()))
+        return tuple(latch.status.alarm for latch in list(self.alarm_state.latches.values()))
 
     @property
     def monitor_silent(self) -> bool:
