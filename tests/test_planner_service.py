@@ -112,14 +112,19 @@ class TestIiwa:
         assert int(np.argmax(speed >= v * (1 - 1e-6))) * DT == pytest.approx(acl, abs=2e-3)
         # Executed: the feedback moves as long as the commands do (same threshold on both).
 
-        def moving_span(x: np.ndarray, t: np.ndarray) -> float:
-            moving = np.flatnonzero(np.abs(x - x[0]) > 1e-4)
-            arrived = np.flatnonzero(np.abs(x - x[-1]) > 1e-4)
-            return t[arrived[-1]] - t[moving[0]]
+        def moving_span(x: np.ndarray, t: np.ndarray) -> tuple[float, float]:
+            """Shortest and longest time [s] from leaving ``x[0]`` to arriving at ``x[-1]`` (beyond 1e-4)
+            that the samples allow: a sample lost in transit (newest value wins) leaves a gap, and the
+            crossing may lie anywhere in the gap on either side."""
+            first = int(np.flatnonzero(np.abs(x - x[0]) > 1e-4)[0])
+            last = int(np.flatnonzero(np.abs(x - x[-1]) > 1e-4)[-1])
+            return t[last] - t[first], t[min(last + 1, len(t) - 1)] - t[max(first - 1, 0)]
 
-        # The feedback by its own time stamps: a sample may be lost in transit (newest value wins).
+        # The feedback by its own time stamps, the commands one per cycle.
         cmd_t = np.arange(len(rec.cmd)) * DT
-        assert moving_span(rec.fb[:, 0], rec.fb_tm) == pytest.approx(moving_span(rec.cmd[:, 0], cmd_t), abs=0.01)
+        commanded = moving_span(rec.cmd[:, 0], cmd_t)[0]
+        shortest, longest = moving_span(rec.fb[:, 0], rec.fb_tm)
+        assert shortest - 0.01 <= commanded <= longest + 0.01, (commanded, shortest, longest, np.diff(rec.fb_tm).max())
         assert time.time() - t0 < reply.duration + 2.0
 
     def test_relative_moves_compose_through_the_queue(self, rig: PlannerRig):
