@@ -192,3 +192,26 @@ def test_a_motion_request_listens_for_a_status_before_it_says_there_is_none():
     drains.clear()
     assert not tracker.view().servo_heard  # a plain view (getState) looks once and does not wait
     assert len(drains) == 1
+
+
+def test_the_measured_joints_first_take_in_what_arrived():
+    """``getFeedbackPos*`` read the newest status that arrived, read by the watcher or not: right after a
+    client learnt its motion ended, the end pose, not one from before it."""
+    from jara_arm.services.command.state import StateTracker
+
+    tracker = StateTracker(publish=lambda view: None)
+    z = (0.0,) * N
+    moving = messages.ServoStatus(Time.now(), True, True, False, 0, 0, 0, 0, z, z, z, seq=1, pos=(0.1,) * N)
+    tracker.on_status(moving)
+    ended = dataclasses.replace(moving, moving=False, seq=2, pos=(0.3,) * N)
+    waiting = [ended]  # arrived, not read yet: the watcher's thread has not run
+
+    def drain() -> None:
+        while waiting:
+            tracker.on_status(waiting.pop())
+
+    tracker.catch_up = drain
+    newest = tracker.measured_joints()
+    assert newest is not None and newest[0] == ended.pos, newest
+    tracker.catch_up = None  # no watcher (a test's tracker): the newest read so far
+    assert tracker.measured_joints()[0] == ended.pos
