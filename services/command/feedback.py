@@ -3,7 +3,9 @@
 They come from ``Servo/status`` (every 10 servo cycles), which the state
 watcher receives anyway: ``Servo/posFeedback`` (every cycle) would cost this
 service and the router a thousand messages a second for an answer at most
-10 ms fresher. If the servo has been silent for ``STALE_AFTER``, the servo's
+10 ms fresher. Each answer first takes in the statuses that arrived and were not
+read yet (``StateTracker.measured_joints``): a client told its motion ended reads
+the pose it ended at. If the servo has been silent for ``STALE_AFTER``, the servo's
 own ``getFeedbackPosJoint`` is asked instead, so that a dead servo gives an NG
 reply that names it rather than an old pose.
 """
