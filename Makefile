@@ -10,9 +10,9 @@ PACKAGES := schema robots services launcher kinematics client
 STAMP  := $(VENV)/.installed-$(shell (cat pyproject.toml; find $(PACKAGES) -type f -not -path '*/__pycache__/*' 2>/dev/null | LC_ALL=C sort) | cksum | cut -d' ' -f1)
 ARGS   ?=
 PYTEST_ARGS ?=
-# TEST_WORKERS=2: the test files on two pytest-xdist workers, each file whole on one: 13 min instead of 17
-# on 2 cores, quiet (2026-11-28); two systems of real-time services on two cores starve each other's non-real-time
-# threads, and beside a busy loop per core 0, 1 and 5 failures in 3 fresh-clone runs, so one process stays the default.
+# TEST_WORKERS=2: the test files on two pytest-xdist workers, each file whole on one: 581 s of tests on 2 cores,
+# quiet, all passed (2026-11-29); two systems of real-time services on two cores starve each other's non-real-time
+# threads, and beside a busy loop per core 1, 2 and 2 failures in 3 fresh-clone runs, so one process stays the default.
 TEST_WORKERS ?= 0
 
 .PHONY: setup up test typecheck bench soak schema browser clean
