@@ -215,3 +215,27 @@ def test_the_measured_joints_first_take_in_what_arrived():
     assert newest is not None and newest[0] == ended.pos, newest
     tracker.catch_up = None  # no watcher (a test's tracker): the newest read so far
     assert tracker.measured_joints()[0] == ended.pos
+
+
+def test_the_state_first_takes_in_what_arrived():
+    """``getState`` right after a client learnt from ``Planner/progress`` that its motion ended: not MOVING
+    from the reports this service read before, though its own status is fresh (not stale)."""
+    from jara_arm.services.command.state import StateTracker
+
+    tracker = StateTracker(publish=lambda view: None)
+    z = (0.0,) * N
+    moving = messages.ServoStatus(Time.now(), True, True, False, 0, 0, 0, 0, z, z, z, seq=1)
+    tracker.on_status(moving)
+    tracker.on_progress(progress(queued=(7,), seq=1))
+    assert tracker.view().moving
+    waiting: list = [progress(seq=2), dataclasses.replace(moving, moving=False, seq=2)]  # arrived, not read
+
+    def drain() -> None:
+        for message in waiting:
+            (tracker.on_progress if isinstance(message, PlannerProgress) else tracker.on_status)(message)
+        waiting.clear()
+
+    tracker.catch_up = drain
+    view = tracker.view()
+    assert not view.moving and view.queue_length == 0 and view.servo_on, view
+

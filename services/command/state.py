@@ -93,14 +93,16 @@ class StateTracker:
 
     # -- reading ------------------------------------------------------------------
     def view(self, listen: float = 0.0) -> StateView:
-        """The state now. If the newest ``Servo/status`` is older than the staleness window, what
-        already arrived is taken in first (``catch_up``): a command service held up without a CPU
-        (a busy machine) has statuses waiting, and "no status" must mean none came, not none was read
-        (8 arms on 2 cores: 13 moves refused in 2 minutes for it). If there is still none, the view
-        waits up to ``listen`` [s] for one (``timing.STATUS_LISTEN`` for a motion request)."""
+        """The state now, after taking in what already arrived and was not read yet (``catch_up``): a
+        client that learnt from ``Planner/progress`` that its motion ended must not read MOVING from a report
+        this service had not read yet, and a command service held up without a CPU (a busy machine) has
+        statuses waiting, where "no status" must mean none came, not none was read (8 arms on 2 cores: 13
+        moves refused in 2 minutes for it). If there is still none, the view waits up to ``listen`` [s] for
+        one (``timing.STATUS_LISTEN`` for a motion request)."""
         catch_up = self.catch_up
-        if catch_up is not None and time.monotonic() - self._status_at > self._stale_after:
+        if catch_up is not None:
             catch_up()
+        if catch_up is not None and time.monotonic() - self._status_at > self._stale_after:
             deadline = time.monotonic() + listen
             while time.monotonic() - self._status_at > self._stale_after and time.monotonic() < deadline:
                 with self._cond:  # woken by on_status, or in a poll period to drain what came meanwhile
