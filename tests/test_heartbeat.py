@@ -9,6 +9,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import logging
+import os
 import time
 from collections.abc import Iterator
 
@@ -197,7 +198,6 @@ def test_a_stopped_process_is_hung_at_the_bound_and_named_stopped():
 def test_a_starved_process_is_not_hung_until_starved_max(monkeypatch):
     """Three busy processes on one core: each waits for the CPU two thirds of the time. Silent past
     the bound, the watched one is starved, not hung (and said so once); past STARVED_MAX it is hung."""
-    import os
 
     from jara_arm.services.runtime import heartbeat, starvation
 
@@ -241,7 +241,10 @@ def test_a_process_that_beats_unheard_is_not_hung_until_starved_max(monkeypatch)
 def test_a_thread_woken_far_more_often_than_it_beats_is_hung():
     """A heartbeat thread that wakes every millisecond is not beating: it is a thread asking for a GIL
     that a hung thread holds (CPython asks every 5 ms). Hung at the bound, as a deadlock is."""
-    child = _child("import time\nwhile True: time.sleep(0.001)")
+    # Real-time where permitted: a thread that waits for a CPU is starved, whatever else it does (two test
+    # workers beside a busy loop per core judged this child starved), and this test is about the wakes.
+    child = _child("import os, time\ntry: os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(30))\n"
+                   "except OSError: pass\nwhile True: time.sleep(0.001)")
     try:
         watch = _watch_of(child.pid)
         assert _judged_after(watch, 0.8)
@@ -251,11 +254,10 @@ def test_a_thread_woken_far_more_often_than_it_beats_is_hung():
         child.wait()
 
 
-def test_a_process_whose_other_threads_wait_for_a_cpu_is_starved():
-    """Its heartbeat thread sleeps (as one waiting for a GIL does), and another of its threads waits for
-    a CPU beside two busy processes on one core: starved, not hung (8 arms on 2 cores: a false 0x412)."""
-    import os
-
+@contextlib.contextmanager
+def _starved_child() -> "Iterator[subprocess.Popen[bytes]]":
+    """A process whose main thread sleeps (as one waiting for a GIL does) while another of its threads
+    waits for a CPU beside two busy processes, all on one core."""
     spin = "import os, time; os.sched_setaffinity(0, {0}); end = time.monotonic() + 10\nwhile time.monotonic() < end: pass"
     busy = [_child(spin) for _ in range(2)]
     child = _child("import os, threading, time\nos.sched_setaffinity(0, {0})\n"
@@ -263,19 +265,65 @@ def test_a_process_whose_other_threads_wait_for_a_cpu_is_starved():
                    "threading.Thread(target=spin, daemon=True).start()\ntime.sleep(30)")
     try:
         wait_until(lambda: all(os.sched_getaffinity(c.pid) == {0} for c in [*busy, child]), timeout=5)
-        watch = _watch_of(child.pid)  # its main thread, asleep, as the heartbeat thread
-        assert not _judged_after(watch, 0.8)
-        line = watch.evidence_line(time.monotonic())
-        assert line is not None and "starved of the CPU" in line
+        yield child
     finally:
         for c in [*busy, child]:
             c.kill()
             c.wait()
 
 
+def test_a_process_whose_other_threads_wait_for_a_cpu_is_starved():
+    """Its heartbeat thread sleeps, and another of its threads waits for a CPU: starved, not hung (8 arms
+    on 2 cores: a false 0x412)."""
+    with _starved_child() as child:
+        watch = _watch_of(child.pid)  # its main thread, asleep, as the heartbeat thread
+        assert not _judged_after(watch, 0.8)
+        line = watch.evidence_line(time.monotonic())
+        assert line is not None and "starved of the CPU" in line
+
+
+def _stall_line_of(pid: int) -> str:
+    """The warning a watcher logs when the service of ``pid`` (its main thread as the heartbeat thread)
+    beats again after a silence watched past the stall bound."""
+    from jara_arm.services.runtime.starvation import THIS_HOST
+
+    watch = _watch_of(pid)
+    _judged_after(watch, 0.2)  # the test profile: evidence kept from 75 ms of silence, a stall from 100 ms
+    gap = watch.heard(time.monotonic(), pid=pid, host=THIS_HOST, tid=pid)
+    assert gap is not None
+    return watch.stall_line(gap)
+
+
+def test_a_stall_of_a_starved_process_says_so():
+    """A stall warning says whether the machine kept the service from a CPU: what a user reads first."""
+    with _starved_child() as child:
+        line = _stall_line_of(child.pid)
+    assert "; starved of the CPU: its threads waited for a CPU" in line, line
+
+
+def test_a_stall_of_a_process_that_stood_still_says_it_was_not_starved():
+    child = _child("import time; time.sleep(30)")
+    try:
+        line = _stall_line_of(child.pid)
+    finally:
+        child.kill()
+        child.wait()
+    assert "; not starved of the CPU: its threads waited for a CPU 0 ms" in line, line
+
+
+def test_a_stall_cause_needs_evidence():
+    """Under ``STALL_EVIDENCE_MIN`` of counters nothing is claimed; a stopped thread is said stopped."""
+    from jara_arm.services.runtime.starvation import STALL_EVIDENCE_MIN, ThreadSched, stall_cause
+
+    before = ThreadSched(False, 1.0, 100, 2.0)
+    assert stall_cause(before, ThreadSched(False, 1.02, 101, 2.02), STALL_EVIDENCE_MIN / 2) == "cause not measured"
+    assert stall_cause(before, ThreadSched(False, 1.0, 100, 2.06), 0.2).startswith("starved of the CPU: ")
+    assert stall_cause(before, ThreadSched(False, 1.0, 100, 2.04), 0.2).startswith("not starved of the CPU: ")
+    assert stall_cause(before, ThreadSched(True, 1.0, 100, 2.0), 0.2).startswith("its process was stopped")
+
+
 def test_a_beat_from_another_host_gives_no_evidence():
     """Another host's pid means nothing here: silence past the bound is hung, as before."""
-    import os
 
     watch = _watch_of(os.getpid(), host="another-boot-id/pid:[1]")
     assert watch.pid == 0

@@ -260,7 +260,10 @@ def test_up_with_the_demo_runs_it_clean_and_raises_no_alarm() -> None:
         out = proc.output
         assert "FAILED" not in out, out
         assert "alarm 0x" not in out and "raised" not in out, out
-        assert "was silent for" not in out, out  # no stall of any service, either
+        # No stall of any service, either, but one the kernel showed starved of the CPU (the machine busy:
+        # beside another test worker and a busy loop per core the command service was, for 267 ms).
+        stalls = [line for line in out.splitlines() if "was silent for" in line]
+        assert all("; starved of the CPU: " in line for line in stalls), out
         assert "held the servo process" not in out, out  # nor of the servo's clock by a garbage collection
 
 

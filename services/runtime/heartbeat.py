@@ -36,7 +36,7 @@ from jara_arm.schema.keys import ArmKeys, Service
 
 from .entities import Entities
 from .realtime import realtime_thread
-from .starvation import EVIDENCE_WINDOW, STARVED_MAX, THIS_HOST, ThreadSched, judge, thread_sched
+from .starvation import EVIDENCE_WINDOW, STARVED_MAX, THIS_HOST, ThreadSched, judge, stall_cause, thread_sched
 from .threads import LoopThread
 from .timing import SAME_HOST, Health
 from .wire import Publication
@@ -159,12 +159,13 @@ class ServiceWatch:
     stalls: int = 0  # silences longer than health.stall_after that ended (the service beat again)
     pid: int = 0  # its process and heartbeat thread, if its heartbeat says it runs on this host
     tid: int = 0
-    # During a silence (starvation.py): the heartbeat thread when the silence passed stall_after
+    # During a silence (starvation.py): the heartbeat thread when the silence passed _evidence_after()
     # (time [s], its counters), the newest verdict (time [s], verdict: "hung", "starved", "beating"
     # or "stopped") and whether a verdict other than hung was logged.
     _base: tuple[float, ThreadSched] | None = None
     _verdict: tuple[float, str] | None = None
     _said: bool = False
+    _stall_cause: str = ""  # of the newest stall that ended (stall_line)
 
     def token(self, up: bool, now: float) -> bool:
         """A liveliness change; True if the service was alive and is now gone (``leaving`` says
@@ -185,6 +186,11 @@ class ServiceWatch:
         """A heartbeat arrived at ``now`` (from thread ``tid`` of process ``pid`` of ``host``, if it
         says); returns the silence it ended [s] if that was a stall."""
         gap = now - self.heard_at if self.heard_at >= self.up_at else 0.0
+        self._stall_cause = ""
+        if gap > self.health.stall_after and self._base is not None and self.pid:
+            sched = thread_sched(self.pid, self.tid)
+            t0, before = self._base
+            self._stall_cause = stall_cause(before, sched, now - t0) if sched is not None else ""
         self.heard_at = now
         self.stuck = stuck
         self.leaving = leaving
@@ -214,11 +220,16 @@ class ServiceWatch:
             return False
         silence = self.silence(now)
         if silence <= self.limit():
-            if self.pid and silence > self.health.stall_after and self._base is None:
+            if self.pid and silence > self._evidence_after() and self._base is None:
                 sched = thread_sched(self.pid, self.tid)
                 self._base = (now, sched) if sched is not None else None
             return False
         return not self.pid or silence > self._starved_limit() or self.verdict(now) in ("hung", "stopped")
+
+    def _evidence_after(self) -> float:
+        """[s] the silence from which the heartbeat thread's counters are kept as evidence: halfway from the
+        heartbeat period (a beat a little late) to the stall bound, so that a stall that ends has some."""
+        return (self.health.heartbeat_period + self.health.stall_after) / 2
 
     def _starved_limit(self) -> float:
         """[s] the silence that makes it hung even when starved or beating unheard."""
@@ -271,7 +282,9 @@ class ServiceWatch:
                 f"timing profile {self.health.name}; {why})")
 
     def stall_line(self, gap: float) -> str:
-        """The warning for a stall that ended [s]."""
+        """The warning for a stall that ended [s], with its cause where this host's kernel kept evidence of it
+        (a service on this host, the stall watched from ``_evidence_after()``)."""
+        cause = f"; {self._stall_cause}" if self._stall_cause else ""
         return (f"the {self.service.value} service was silent for {gap * 1e3:.0f} ms and is back (stall "
                 f"{self.stalls}; warned above {self.health.stall_after * 1e3:.0f} ms, hung above "
-                f"{self.health.hung_after * 1e3:.0f} ms)")
+                f"{self.health.hung_after * 1e3:.0f} ms{cause})")

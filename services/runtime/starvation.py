@@ -5,8 +5,9 @@ watcher's own host the kernel says why (``/proc/<pid>/task/<tid>``): a thread
 in state ``T`` or ``t`` is stopped (SIGSTOP, a debugger); the heartbeat
 thread's ``schedstat`` counts the time it was runnable but waited for a CPU
 (its run delay) and how often it was given one. :class:`~.heartbeat.ServiceWatch`
-asks this only during a silence longer than the stall bound, a few file reads,
-never per beat.
+asks this only during a silence longer than halfway from the heartbeat period
+to the stall bound, a few file reads, never per beat; a stall that ends is
+logged with what its process waited for a CPU meanwhile (:func:`stall_cause`).
 
 * The heartbeat thread waited for a CPU for ``STARVED_SHARE`` of the silence
   or more: the service is *starved*, not hung (the machine is busy).
@@ -120,3 +121,23 @@ def judge(before: ThreadSched, now: ThreadSched, elapsed: float, period: float) 
     if now.process_run_delay - before.process_run_delay >= STARVED_SHARE * elapsed:
         return "starved"  # the heartbeat thread waits for a GIL whose holder waits for a CPU
     return "hung"
+
+
+#: A stall's cause is told from at least this much of it [s]: less says nothing.
+STALL_EVIDENCE_MIN: Final = 0.05
+
+
+def stall_cause(before: ThreadSched, now: ThreadSched, elapsed: float) -> str:
+    """Why a service was silent for a while and is back, from its heartbeat thread ``before`` and ``now``,
+    ``elapsed`` [s] apart (the end of the silence): what a stall warning adds, so that a user reads whether
+    the machine was busy (starved of the CPU) or the service itself stood still."""
+    if now.stopped or before.stopped:
+        return "its process was stopped (SIGSTOP, or held by a debugger)"
+    if elapsed < STALL_EVIDENCE_MIN:
+        return "cause not measured"
+    waited = max(now.run_delay - before.run_delay, now.process_run_delay - before.process_run_delay)
+    seen = f"its threads waited for a CPU {waited * 1e3:.0f} ms in all over the last {elapsed * 1e3:.0f} ms of it"
+    if waited >= STARVED_SHARE * elapsed:
+        return f"starved of the CPU: {seen}"
+    return f"not starved of the CPU: {seen}"
+
