@@ -10,10 +10,9 @@ PACKAGES := schema robots services launcher kinematics client
 STAMP  := $(VENV)/.installed-$(shell (cat pyproject.toml; find $(PACKAGES) -type f -not -path '*/__pycache__/*' 2>/dev/null | LC_ALL=C sort) | cksum | cut -d' ' -f1)
 ARGS   ?=
 PYTEST_ARGS ?=
-# TEST_WORKERS=2: the test files on two pytest-xdist workers, each file whole on one: 581 s of tests on 2 cores,
-# quiet, all passed (2026-11-29); two systems of real-time services on two cores starve each other's non-real-time
-# threads, and beside a busy loop per core 1, 2 and 2 failures in 3 fresh-clone runs, so one process stays the default.
-TEST_WORKERS ?= 0
+# The test files on two pytest-xdist workers, each file whole on one, the longest first (README, "make test");
+# TEST_WORKERS=0: in one process, about twice as long.
+TEST_WORKERS ?= 2
 
 .PHONY: setup up test typecheck bench soak schema browser clean
 
@@ -23,6 +22,10 @@ $(STAMP): pyproject.toml
 	# setuptools' notice that a strict editable install keeps build/__editable__* is silenced: that is the point of it.
 	PYTHONWARNINGS=ignore::Warning:setuptools.command.editable_wheel \
 		$(BIN)/python -m pip install --quiet --config-settings editable_mode=strict -e '.[test]'
+	# Byte-compiled once, as pip does for every other package: each service process, CLI tool and test
+	# worker imports the project's 50,000 lines, and where PYTHONDONTWRITEBYTECODE is set (this VM) each
+	# compiled them again at every start.
+	$(BIN)/python -m compileall -q build
 	rm -f $(VENV)/.installed-*
 	touch $@
 
