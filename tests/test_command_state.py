@@ -238,4 +238,3 @@ def test_the_state_first_takes_in_what_arrived():
     tracker.catch_up = drain
     view = tracker.view()
     assert not view.moving and view.queue_length == 0 and view.servo_on, view
-

@@ -99,10 +99,8 @@ class StateTracker:
         statuses waiting, where "no status" must mean none came, not none was read (8 arms on 2 cores: 13
         moves refused in 2 minutes for it). If there is still none, the view waits up to ``listen`` [s] for
         one (``timing.STATUS_LISTEN`` for a motion request)."""
-        catch_up = self.catch_up
-        if catch_up is not None:
+        if (catch_up := self.catch_up) is not None:
             catch_up()
-        if catch_up is not None and time.monotonic() - self._status_at > self._stale_after:
             deadline = time.monotonic() + listen
             while time.monotonic() - self._status_at > self._stale_after and time.monotonic() < deadline:
                 with self._cond:  # woken by on_status, or in a poll period to drain what came meanwhile

@@ -140,4 +140,3 @@ def stall_cause(before: ThreadSched, now: ThreadSched, elapsed: float) -> str:
     if waited >= STARVED_SHARE * elapsed:
         return f"starved of the CPU: {seen}"
     return f"not starved of the CPU: {seen}"
-
