@@ -191,6 +191,26 @@ def test_through_the_gateway_the_feedback_is_every_sample_of_the_blocks_in_order
     assert np.all(np.diff(ns) >= robots.robot(ROBOT).cmd_cycle_ms * 1_000_000)  # one sample per cycle
 
 
+def test_the_relay_takes_blocks_only_while_a_client_wants_feedback() -> None:
+    """``FeedbackRelay`` subscribes to the blocks (and so makes the servos send them) only while a client of
+    the gateway subscribes to some arm's ``posFeedback``, by name or by a wildcard; not for other keys."""
+    port = free_port()
+    with zenoh.open(zenoh_config("router", listen=[endpoint(port)])) as router, client_session(port) as client:
+        relay = FeedbackRelay(router)
+        try:
+            status = router.declare_publisher(ArmKeys("arm0").servo_status)
+            with client.declare_subscriber(ArmKeys("arm0").servo_status, zenoh.handlers.FifoChannel(4)):
+                wait_until(lambda: status.matching_status.matching, 10, what="the router knowing the subscriber")
+                assert not relay.relaying
+            status.undeclare()
+            for key in (ArmKeys("arm0").pos_feedback, "JARA_ARM/**"):
+                with client.declare_subscriber(key, zenoh.handlers.FifoChannel(4)):
+                    wait_until(lambda: relay.relaying, 10, what=f"the relay taking blocks for {key}")
+                wait_until(lambda: not relay.relaying, 10, what=f"the relay letting go once {key} went")
+        finally:
+            relay.close()
+
+
 def test_the_relay_drops_what_is_not_a_block_and_goes_on() -> None:
     """``FeedbackRelay`` in a router session of its own: a payload on a block key that is no block is dropped
     and said once; the blocks before and after it reach a subscriber sample by sample, in order."""
@@ -199,7 +219,8 @@ def test_the_relay_drops_what_is_not_a_block_and_goes_on() -> None:
         relay = FeedbackRelay(router)
         keys = ArmKeys("arm0")
         with client.declare_subscriber(keys.pos_feedback, zenoh.handlers.FifoChannel(256)) as fb:
-            wait_until(lambda: relay.wanted("arm0"), 10, what="the relay's publisher matching the subscriber")
+            wait_until(lambda: relay.wanted("arm0") and relay.relaying, 10,
+                       what="the relay's publisher matching the subscriber, and the relay taking blocks")
             blocks = [[(1_000_000 * (10 * b + k), [0.1 * b, float(k)]) for k in range(10)] for b in range(2)]
             router.put(keys.pos_feedback_block, messages.feedback_block_payload(blocks[0]))
             router.put(keys.pos_feedback_block, b"not a block")

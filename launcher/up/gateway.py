@@ -18,9 +18,9 @@ motion hand-overs of an arm. So ``jara-arm up`` runs two routers:
   its own and slow other clients; the bus sees one reader, the gateway, which never waits on anyone.
 
 The 1 kHz feedback crosses the bus in blocks (``Servo/posFeedbackBlock``, :data:`FEEDBACK_BLOCK_CYCLES
-<jara_arm.services.runtime.timing.FEEDBACK_BLOCK_CYCLES>` samples each) whoever subscribes: the gateway
+<jara_arm.services.runtime.timing.FEEDBACK_BLOCK_CYCLES>` samples each): the gateway
 takes them and publishes the samples one by one on ``Servo/posFeedback`` to its clients, and only while
-one subscribes (:class:`FeedbackRelay`). So a client's 1 kHz stream costs the real-time side, the servo
+one subscribes (:class:`FeedbackRelay`; while none does, the gateway takes no block and the servo builds none). So a client's 1 kHz stream costs the real-time side, the servo
 and the bus, one message per block, not one per cycle.
 
 On the bus, the only blocking publications (a low-level client's ``Servo/posCmd``, ``Traffic.STREAM``)
@@ -178,27 +178,47 @@ class FeedbackRelay:
     """The gateway's ``Servo/posFeedback``: each ``Servo/posFeedbackBlock`` from the bus, sample by sample,
     to the gateway's clients, while one of them subscribes (the arm's publisher here matches).
 
-    The Zenoh callback only queues the block; a thread of its own unpacks and publishes, so a slow relay
+    The relay subscribes to the blocks only while some client of the gateway subscribes to any arm's
+    ``posFeedback`` (a publisher on ``*/Servo/posFeedback`` here, for its matching status): otherwise the
+    servo builds no block and the bus carries none. An idle cell then costs 100 messages a second per arm
+    less on the servo, the bus and the gateway (``docs/architecture.md``, "Feedback in blocks").
+
+    The Zenoh callbacks only queue; a thread of its own declares, unpacks and publishes, so a slow relay
     loses blocks of its own (:attr:`dropped`) and holds up no routing. A block that is not one, or that
     cannot be published, is dropped and logged once per key.
     """
 
     def __init__(self, session: zenoh.Session) -> None:
         self._session = session
-        self._blocks: queue.Queue[zenoh.Sample | None] = queue.Queue(RELAY_QUEUE)
+        self._blocks: queue.Queue[zenoh.Sample | bool | None] = queue.Queue(RELAY_QUEUE)
         self._publications: dict[str, Publication] = {}
         self._lock = threading.Lock()
         self._said: set[str] = set()
         self.relayed = self.dropped = 0  # samples published; blocks lost to a full queue
-        self._sub = session.declare_subscriber(ArmKeys(ANY_ARM).pos_feedback_block, self._take)
+        self._sub: zenoh.Subscriber | None = None  # the blocks' subscription, while wanted (the thread's)
+        self._demand = session.declare_publisher(ArmKeys(ANY_ARM).pos_feedback)  # never put: its matching
+        self._wanted = False
+        self._demand_listener = self._demand.declare_matching_listener(self._on_demand)
         self._thread = threading.Thread(target=self._run, name="feedback-relay", daemon=True)
         self._thread.start()
+        self._on_demand(self._demand.matching_status)
+
+    def _on_demand(self, status: zenoh.MatchingStatus) -> None:
+        self._wanted = status.matching
+        # A full queue: the thread is busy and looks at the demand after every block anyway.
+        with contextlib.suppress(queue.Full):
+            self._blocks.put_nowait(status.matching)
 
     def _take(self, sample: zenoh.Sample) -> None:
         try:
             self._blocks.put_nowait(sample)
         except queue.Full:
             self.dropped += 1
+
+    @property
+    def relaying(self) -> bool:
+        """Whether the relay subscribes to the arms' blocks (a client of the gateway wants feedback)."""
+        return self._sub is not None
 
     def _publication(self, arm: str) -> Publication:
         with self._lock:  # the relay's thread and :meth:`wanted`'s caller
@@ -214,24 +234,38 @@ class FeedbackRelay:
         """Whether a subscriber of ``arm``'s ``Servo/posFeedback`` is there to relay to."""
         return self._publication(arm).publisher.matching_status.matching
 
+    def _follow_demand(self) -> None:
+        if self._wanted and self._sub is None:
+            self._sub = self._session.declare_subscriber(ArmKeys(ANY_ARM).pos_feedback_block, self._take)
+        elif not self._wanted and self._sub is not None:
+            self._sub.undeclare()
+            self._sub = None
+
     def _run(self) -> None:
-        while (sample := self._blocks.get()) is not None:
-            key = str(sample.key_expr)
+        while (item := self._blocks.get()) is not None:
+            self._follow_demand()
+            if isinstance(item, bool):
+                continue
+            key = str(item.key_expr)
             try:
                 pub = self._publication(arm_of(key))
                 if not pub.publisher.matching_status.matching:
                     continue
-                for payload in feedback_block_samples(sample.payload.to_bytes()):
+                for payload in feedback_block_samples(item.payload.to_bytes()):
                     pub.put(payload)
                     self.relayed += 1
             except (JaraArmError, zenoh.ZError) as exc:  # a block that is not one (WireError), a put refused
                 if key not in self._said:
                     self._said.add(key)
                     log.warning("feedback relay: dropped a block on %s: %s", key, exc)
+        if self._sub is not None:
+            self._sub.undeclare()
+            self._sub = None
 
     def close(self) -> None:
-        """Stop relaying: undeclare the subscription, then the thread and the publishers."""
-        self._sub.undeclare()
+        """Stop relaying: the demand's listener, then the thread (it undeclares the blocks), then the publishers."""
+        self._demand_listener.undeclare()
+        self._demand.undeclare()
         with contextlib.suppress(queue.Full):
             self._blocks.put(None, timeout=1.0)
         self._thread.join(timeout=2.0)

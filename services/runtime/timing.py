@@ -49,7 +49,7 @@ STATUS_EVERY: Final = 10
 STATUS_EVERY_AT_REST: Final = 100
 #: Servo/posFeedbackBlock: the posFeedback samples of this many cycles in one message [cycles], while a
 #: client gateway takes them. The cell bus then carries 100 messages a second per arm instead of 1,000,
-#: on its real-time side, whoever subscribes; the price is up to this many periods more latency for a
+#: on its real-time side, whoever subscribes through it (and none while no client does); the price is up to this many periods more latency for a
 #: client of the gateway (docs/architecture.md, "Feedback in blocks").
 FEEDBACK_BLOCK_CYCLES: Final = 10
 #: Servo/health (the loop's timing statistics) this often [s].
