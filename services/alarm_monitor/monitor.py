@@ -40,8 +40,9 @@ from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
+from jara_arm.services.runtime.inbox import Inbox
 from jara_arm.services.runtime.threads import LoopThread
-from jara_arm.services.runtime.timing import MONITOR_POLL, SAME_HOST, Health
+from jara_arm.services.runtime.timing import MONITOR_POLL, MONITOR_WAIT, SAME_HOST, Health
 from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .book import AlarmBook
@@ -96,16 +97,19 @@ class Monitor:
         self._tool = np.zeros(3)  # [m] control point in the flange frame (translation of C)
         self._n = n
         self.watches = {s: ServiceWatch(s, health) for s in (Service.SERVO, Service.PLANNER, Service.COMMAND)}
-        ring, fifo = zenoh.handlers.RingChannel, zenoh.handlers.FifoChannel
         self._entities = Entities()
         enter = self._entities.enter_context
-        self._estop = enter(session.declare_subscriber(keys.estop, fifo(64)))
-        self._alive = enter(session.liveliness().declare_subscriber(keys.alive(), fifo(256), history=True))
+        inbox = self._inbox = Inbox()
+        self._estop, self._alive, self._status = inbox.box(64), inbox.box(256), inbox.box(256)
+        self._heartbeats, self._settings_sub = inbox.box(1024), inbox.box(1)
+        enter(session.declare_subscriber(keys.estop, self._estop))
+        enter(session.liveliness().declare_subscriber(keys.alive(), self._alive, history=True))
         # Servo/status (100 Hz) carries the servo's latched alarms and the measured joints: Servo/posFeedback
         # (1 kHz) would cost the monitor and the router ten times the work for no alarm sooner than 10 ms.
-        self._status = enter(session.declare_subscriber(keys.servo_status, fifo(256)))
-        self._heartbeats = enter(session.declare_subscriber(keys.heartbeat(), fifo(1024)))
-        self._settings_sub = enter(session.declare_subscriber(keys.command_settings, ring(1)))
+        enter(session.declare_subscriber(keys.servo_status, self._status))
+        for service in self.watches:  # not its own: 10 wakes a second for nothing
+            enter(session.declare_subscriber(keys.heartbeat(service), self._heartbeats))
+        enter(session.declare_subscriber(keys.command_settings, self._settings_sub))
         self._event_pub = enter(Publication(session, keys.alarm))
         self._list_pub = enter(Publication(session, keys.monitor_alarms))
         self._reactions = Reactions(session, keys)
@@ -114,7 +118,7 @@ class Monitor:
         self._dirty = True
         self._list_at = -float("inf")
         self._judge_after = 0.0  # [s] monotonic: staleness is judged from then on
-        self._loop = LoopThread(self._run, "alarm-monitor")
+        self._loop = LoopThread(self._run, "alarm-monitor", wake=inbox.ring)
 
     # -- life cycle ---------------------------------------------------------------
     def take_over(self, held: AlarmList | None) -> None:
@@ -146,13 +150,15 @@ class Monitor:
         """Run ``fn`` on the monitor thread once the pending inputs are drained; its result."""
         fut: concurrent.futures.Future = concurrent.futures.Future()
         self._calls.append((fn, fut))
+        self._inbox.ring()
         return fut.result(timeout=timeout)
 
     # -- the loop -----------------------------------------------------------------
     def _run(self, stop: threading.Event) -> None:
         last = time.monotonic()
         stall_logged = -float("inf")
-        while not stop.wait(MONITOR_POLL):
+        while not stop.is_set():
+            self._inbox.wait(MONITOR_WAIT, spacing=MONITOR_POLL)
             self._pulse.beat()
             now = time.monotonic()
             if now - last > self.health.stall_after:

@@ -1,9 +1,11 @@
 """The thread that feeds the state tracker from the servo, the planner, the alarm monitor and their liveliness.
 
-Zenoh only fills channels (RingChannel for the servo status, where the newest
-value is what counts; FifoChannel for planner progress and liveliness, where
-every change counts); this one thread drains them every ``timing.WATCHER_POLL`` and
-also notices a servo that fell silent, which no message would announce.
+Zenoh only fills the boxes of an ``Inbox`` (the servo status, where the newest
+value is what counts, in a box of a few; planner progress and liveliness, where
+every change counts, in large ones); this one thread drains them when something
+came (at most every ``timing.WATCHER_POLL``), and at least every
+``timing.WATCHER_WAIT`` to notice a servo that fell silent, which no message
+would announce.
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.planner import PLANNER_PROGRESS
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse
+from jara_arm.services.runtime.inbox import Inbox
 from jara_arm.services.runtime.threads import LoopThread
-from jara_arm.services.runtime.timing import WATCHER_POLL
+from jara_arm.services.runtime.timing import WATCHER_POLL, WATCHER_WAIT
 from jara_arm.services.runtime.wire import decode_sample
 
 from .state import StateTracker
@@ -45,18 +48,20 @@ class Watcher:
         tracker.catch_up = self.drain
         self._entities = Entities()
         enter = self._entities.enter_context
-        self._status = enter(session.declare_subscriber(keys.servo_status,
-                                                        zenoh.handlers.RingChannel(_STATUS_RING)))
-        self._progress = enter(session.declare_subscriber(keys.planner_progress,
-                                                          zenoh.handlers.FifoChannel(_PROGRESS_FIFO)))
-        self._planner = enter(session.liveliness().declare_subscriber(
-            keys.alive(Service.PLANNER), zenoh.handlers.FifoChannel(64), history=True))
-        self._alarms = enter(session.declare_subscriber(keys.monitor_alarms,
-                                                        zenoh.handlers.FifoChannel(_ALARMS_FIFO)))
-        self._monitor = enter(session.liveliness().declare_subscriber(
-            keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True))
+        inbox = self._inbox = Inbox()
+        self._status = inbox.box(_STATUS_RING)
+        self._progress = inbox.box(_PROGRESS_FIFO)
+        self._planner = inbox.box(64)
+        self._alarms = inbox.box(_ALARMS_FIFO)
+        self._monitor = inbox.box(64)
+        enter(session.declare_subscriber(keys.servo_status, self._status))
+        enter(session.declare_subscriber(keys.planner_progress, self._progress))
+        enter(session.liveliness().declare_subscriber(keys.alive(Service.PLANNER), self._planner, history=True))
+        enter(session.declare_subscriber(keys.monitor_alarms, self._alarms))
+        enter(session.liveliness().declare_subscriber(keys.alive(Service.ALARM_MONITOR), self._monitor,
+                                                      history=True))
         self._bad = 0  # malformed messages seen (logged once per kind)
-        self._loop = LoopThread(self._run, "command-watch")
+        self._loop = LoopThread(self._run, "command-watch", wake=inbox.ring)
 
     def start(self) -> None:
         self._loop.start()
@@ -72,7 +77,8 @@ class Watcher:
             self._entities.close()
 
     def _run(self, stop: threading.Event) -> None:
-        while not stop.wait(WATCHER_POLL):
+        while not stop.is_set():
+            self._inbox.wait(WATCHER_WAIT, spacing=WATCHER_POLL)
             self._pulse.beat()
             self.drain()
 

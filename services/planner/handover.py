@@ -48,6 +48,7 @@ from jara_arm.schema.motion import (
 from jara_arm.schema.planner import QUEUE_CAPACITY, ControlAction, PlannerProgress
 from jara_arm.schema.types import Time
 from jara_arm.services.runtime.heartbeat import Pulse
+from jara_arm.services.runtime.inbox import Inbox
 from jara_arm.services.runtime.threads import LoopThread
 from jara_arm.services.runtime.timing import SAME_HOST, STATUS_LISTEN, STOP_WAIT, WATCHER_POLL
 
@@ -79,7 +80,9 @@ class Handover:
     def __init__(self, dof: int, period: float, ask_trajectory: AskTrajectory, ask_control: AskControl,
                  publish_progress: Callable[[PlannerProgress], None],
                  poll_status: Callable[[], ServoStatus | None], poll_motion: Callable[[], MotionProgress | None],
-                 pulse: Pulse | None = None, capacity: int = QUEUE_CAPACITY) -> None:
+                 pulse: Pulse | None = None, capacity: int = QUEUE_CAPACITY, inbox: Inbox | None = None) -> None:
+        """``inbox``: the one whose box ``poll_motion`` reads: the relay wakes when a ``Servo/motion`` comes
+        (without it, only every ``PROGRESS_PERIOD``)."""
         if capacity < 1:
             raise ValueError(f"queue capacity must be at least 1, got {capacity}")
         self.dof, self.period = dof, period
@@ -98,7 +101,8 @@ class Handover:
         self._head: _Head | None = None  # handed over early, not accepted yet
         self._started = Time.now()
         self._snapshot: PlannerProgress | None = None
-        self._loop = LoopThread(self._relay, "planner-progress")
+        self._inbox = inbox or Inbox()
+        self._loop = LoopThread(self._relay, "planner-progress", wake=self._inbox.ring)
 
     # ------------------------------------------------------------------ life cycle
 
@@ -330,11 +334,14 @@ class Handover:
 
     # ------------------------------------------------------------------ the relay
 
-    def _refresh(self) -> None:
-        """Take the newest ``Servo/motion`` received, if any (the relay does it too, every WATCHER_POLL)."""
+    def _refresh(self, relay: bool = False) -> None:
+        """Take the newest ``Servo/motion`` received, if any (the relay does it too, when one comes); one
+        taken here, not by the relay, wakes the relay to publish it."""
         m = self._poll_motion()
         if m is not None:
             self._adopt(m)
+            if not relay:
+                self._inbox.ring()
 
     def _adopt(self, m: MotionProgress) -> bool:
         """Keep ``m`` if it is the servo's newest; True if it was. One of the same state but later (its
@@ -356,7 +363,7 @@ class Handover:
         while not stop.is_set():
             self._pulse.beat()
             try:
-                self._refresh()
+                self._refresh(relay=True)
                 now = time.time()
                 with self._lock:
                     progress = self._progress(now)
@@ -365,7 +372,7 @@ class Handover:
                     last, last_at = progress, now
             except Exception:  # the relay must outlive a bug: log it and go on
                 log.exception("progress relay iteration failed")
-            stop.wait(WATCHER_POLL)
+            self._inbox.wait(max(0.0, last_at + PROGRESS_PERIOD - time.time()), spacing=WATCHER_POLL)
 
     def _queued(self) -> tuple[int, ...]:
         """The motions accepted and not finished, the running one first (lock held): a head is not accepted yet."""

@@ -128,7 +128,8 @@ class Jogger:
         #: When the newest call arrived, and the newest served [monotonic s]: one between them waits for the lock.
         self._arrived = self._served = 0.0
         self._cost = 5e-4  # [s] an extension's time per sample, the last one's (a Cartesian 7-axis jog's here)
-        self._loop = LoopThread(self._run, "planner-jog")
+        self._began = threading.Event()  # a jog began: the thread, asleep while none runs, ticks again
+        self._loop = LoopThread(self._run, "planner-jog", wake=self._began.set)
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
@@ -202,6 +203,7 @@ class Jogger:
             log.info("jog %s: stopping before the limit: %s", cmd.describe(), jog.ended)
             return ReturnCode.OK, f"OK: jogging {cmd.describe()}, stopping before the limit: {jog.ended}"
         self._jog = jog
+        self._began.set()
         log.info("jog %s started (motion %d, lease %.0f ms)", self._describe(jog), jog.motion, cmd.lease * 1e3)
         return ReturnCode.OK, f"OK: jogging {self._describe(jog)} (motion {jog.motion})"
 
@@ -413,7 +415,13 @@ class Jogger:
     def _run(self, stop: threading.Event) -> None:
         with self._lock:  # built here, not at the first jog (0.25 s) nor in the service's start
             self._kit()
-        while not stop.wait(TICK):
+        while not stop.is_set():
+            if self._jog is None:  # no jog: no tick (100 wakes a second for nothing)
+                self._began.wait()
+                self._began.clear()
+                continue
+            if stop.wait(TICK):
+                return
             try:
                 self._tick()
             except Exception:  # a jog that cannot go on stops; the thread goes on for the next one

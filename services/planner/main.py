@@ -70,6 +70,7 @@ from jara_arm.schema.planner import (
 from jara_arm.services.runtime.arguments import non_negative_float, obstacle_argument, positive_int
 from jara_arm.services.runtime.service import ArmService, ServiceContext, entry
 from jara_arm.services.runtime.ask import Asker, Silence
+from jara_arm.services.runtime.inbox import Inbox
 from jara_arm.services.runtime.timing import CONTROL_TIMEOUT, EARLY_START, SERVO_TIMEOUT
 from jara_arm.services.runtime.wire import Publication, decode_sample
 
@@ -103,14 +104,17 @@ class PlannerService:
         self._progress_pub = ctx.enter(Publication(session, keys.planner_progress))
         self._path_pub = ctx.enter(Publication(session, keys.planner_path))  # for viewers, low rate
         self._status_sub = ctx.enter(session.declare_subscriber(keys.servo_status, zenoh.handlers.RingChannel(1)))
-        self._motion_sub = ctx.enter(session.declare_subscriber(keys.servo_motion, zenoh.handlers.RingChannel(4)))
+        relay_inbox = Inbox()  # the progress relay wakes when a Servo/motion comes
+        self._motion_sub = relay_inbox.box(4)
+        ctx.enter(session.declare_subscriber(keys.servo_motion, self._motion_sub))
         self._trajectory = Asker(session, keys.servo_trajectory, SERVO_TIMEOUT)
         ctx.closing(self._trajectory.close)
         self._control = Asker(session, keys.servo_motion_control, CONTROL_TIMEOUT)
         ctx.closing(self._control.close)
         self.handover = Handover(model.dof, model.cmd_cycle, self._ask_trajectory, self._ask_control,
                                  self._put_progress, self._poll_status, self._poll_motion,
-                                 pulse=ctx.heartbeat().pulse("the progress relay"), capacity=capacity)
+                                 pulse=ctx.heartbeat().pulse("the progress relay"), capacity=capacity,
+                                 inbox=relay_inbox)
         self.handover.start()
         ctx.closing(self.handover.close)
         ctx.watch("the progress relay thread", lambda: self.handover.alive)

@@ -13,11 +13,14 @@ from collections.abc import Callable
 class LoopThread:
     """A daemon thread running ``body(stop)``; ``body`` returns once ``stop`` is set (:meth:`stop`)."""
 
-    def __init__(self, body: Callable[[threading.Event], None], name: str, join_within: float = 2.0) -> None:
-        """``join_within`` [s]: how long :meth:`stop` waits for ``body`` to return."""
+    def __init__(self, body: Callable[[threading.Event], None], name: str, join_within: float = 2.0,
+                 wake: Callable[[], None] | None = None) -> None:
+        """``join_within`` [s]: how long :meth:`stop` waits for ``body`` to return; ``wake``: how :meth:`stop`
+        wakes a ``body`` that waits on something else than ``stop`` (an ``Inbox``'s ``ring``)."""
         self._stop = threading.Event()
         self._thread = threading.Thread(target=body, args=(self._stop,), name=name, daemon=True)
         self._join_within = join_within
+        self._wake = wake
 
     def start(self) -> None:
         self._thread.start()
@@ -35,6 +38,8 @@ class LoopThread:
     def stop(self) -> None:
         """Ask ``body`` to return, and wait for it up to ``join_within`` (if it was started)."""
         self._stop.set()
+        if self._wake is not None:
+            self._wake()
         if self._thread.is_alive():
             self._thread.join(timeout=self._join_within)
 

@@ -57,12 +57,18 @@ HEALTH_EVERY: Final = 1.0
 
 # -- polling periods of the services' own threads ------------------------------------
 
-#: The alarm monitor drains its inputs this often [s]: its share of the detection latency of
-#: overload, overspeed and the Cartesian box (status arrives every 10 ms).
+#: The alarm monitor drains its inputs when one arrives, at most this often [s]: what comes sooner
+#: waits for the rest and is taken in one batch, so a moving arm's 100 Hz status plus the
+#: heartbeats cost no more wakes than a 10 ms poll (``runtime/inbox.py``).
 MONITOR_POLL: Final = 0.01
-#: The command service's state watcher drains its inputs this often [s]: the delay of a
-#: state change (bit 0x02 when a motion ends) seen by getState.
+#: ... and at least this often [s], to judge the services' silences (heartbeats every 0.1 s; a
+#: silence is warned of past 0.25 s): up to this much later than a 10 ms poll said it.
+MONITOR_WAIT: Final = 0.05
+#: The command service's state watcher drains its inputs when one arrives, at most this often [s]
+#: (a call's catch-up drains at once: getState never waits on it).
 WATCHER_POLL: Final = 0.01
+#: ... and at least this often [s], to say off a servo silent for ``STATUS_STALE_AFTER`` (1 s).
+WATCHER_WAIT: Final = 0.1
 #: A motion request listens this long for a ``Servo/status`` before it says none came [s] (the
 #: command's state and the planner's start point): on a saturated machine the asker's own receiving
 #: threads can be the ones held up (8 arms on 2 cores: moves refused for "no Servo/status" while
