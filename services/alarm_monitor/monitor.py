@@ -42,7 +42,7 @@ from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.inbox import Inbox
 from jara_arm.services.runtime.threads import LoopThread
-from jara_arm.services.runtime.timing import MONITOR_POLL, MONITOR_WAIT, SAME_HOST, Health
+from jara_arm.services.runtime.timing import MONITOR_WAIT, SAME_HOST, Health
 from jara_arm.services.runtime.wire import Publication, decode_sample
 
 from .book import AlarmBook
@@ -158,7 +158,7 @@ class Monitor:
         last = time.monotonic()
         stall_logged = -float("inf")
         while not stop.is_set():
-            self._inbox.wait(MONITOR_WAIT, spacing=MONITOR_POLL)
+            self._inbox.wait(MONITOR_WAIT)  # no spacing: an e-stop right after a heartbeat is taken at once
             self._pulse.beat()
             now = time.monotonic()
             if now - last > self.health.stall_after:

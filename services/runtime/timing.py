@@ -57,12 +57,9 @@ HEALTH_EVERY: Final = 1.0
 
 # -- polling periods of the services' own threads ------------------------------------
 
-#: The alarm monitor drains its inputs when one arrives, at most this often [s]: what comes sooner
-#: waits for the rest and is taken in one batch, so a moving arm's 100 Hz status plus the
-#: heartbeats cost no more wakes than a 10 ms poll (``runtime/inbox.py``).
-MONITOR_POLL: Final = 0.01
-#: ... and at least this often [s], to judge the services' silences (heartbeats every 0.1 s; a
-#: silence is warned of past 0.25 s): up to this much later than a 10 ms poll said it.
+#: The alarm monitor drains its inputs as each arrives (``runtime/inbox.py``), and at least this
+#: often [s], to judge the services' silences (heartbeats every 0.1 s; a silence is warned of past
+#: 0.25 s): up to this much later than a 10 ms poll said it.
 MONITOR_WAIT: Final = 0.05
 #: The command service's state watcher drains its inputs when one arrives, at most this often [s]
 #: (a call's catch-up drains at once: getState never waits on it).
