@@ -411,7 +411,8 @@ def test_live_pause_in_a_blend_holds_and_resume_reaches_the_end(arm: Arm):
 def test_live_stop_in_a_blend_ends_at_rest_and_the_queue_works_after(arm: Arm):
     d = 0.02
     corners = arm.square(d)
-    arm.ok(arm.when_within(corners[1], 0.6 * d, then=lambda: arm.middle(OP.stop)))
+    reply, at_stop = arm.when_within(corners[1], 0.6 * d, then=lambda: (arm.middle(OP.stop), arm.flange_now()))
+    arm.ok(reply)
     arm.idle()
     arm.servo_time.settled()  # at rest, not creeping
     rest = arm.flange_now()
@@ -419,7 +420,10 @@ def test_live_stop_in_a_blend_ends_at_rest_and_the_queue_works_after(arm: Arm):
     assert np.linalg.norm(arm.flange_now() - rest) < 1e-5
     state = arm.common(OP.getState)["state"]
     assert not state & (StateBit.MOVING | StateBit.PAUSED | StateBit.ALARM | StateBit.BUFFER_FULL)
-    assert np.linalg.norm(rest - corners[1]) < 2 * d  # stopped by the corner, not on along the queue
+    # Braked from where the stop was answered, not on along the queue. Measured from there, not from the
+    # corner: a test thread starved past the corner asks for the stop late (CI: 59 mm on from the corner).
+    assert np.linalg.norm(rest - at_stop) < 2 * d, f"{np.linalg.norm(at_stop - corners[1]) * 1e3:.0f} mm " \
+        f"from the corner when the stop was answered, at rest {np.linalg.norm(rest - corners[1]) * 1e3:.0f} mm"
     assert np.linalg.norm(rest - corners[3]) > LEG / 2
     # a motion after the stop runs from where the arm rests
     arm.record()

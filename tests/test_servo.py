@@ -200,7 +200,10 @@ def test_emergency_stop(rig: Rig):
     rig.wait_rest()
     tm, fb = j1_of(*rig.recorded_timed())
     _, acc = velocity_and_acceleration(tm, fb)
-    assert np.nanmax(np.abs(acc)) < AMAX[0] * 1.5  # a controlled stop: no jump
+    peak = int(np.nanargmax(np.abs(acc)))
+    assert abs(acc[peak]) < AMAX[0] * 1.5, (  # a controlled stop: no jump (1.02-1.04 x AMAX here)
+        f"J1 accelerated {acc[peak]:.2f} rad/s^2 at sample {peak} of {len(acc)} "
+        f"(J1 {fb[max(0, peak - 3):peak + 4]}, at {tm[max(0, peak - 3):peak + 4] - tm[0]} s)\n{rig.log_tail()}")
     assert fb[-1] < path[-1, 0] - 0.1  # stopped short of the target
     held = rig.joints()
     received = rig.statuses.newest().received

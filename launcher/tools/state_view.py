@@ -39,8 +39,10 @@ from .arm_state import format_state, read_state, sample_encoding
 
 CLEAR = "\x1b[H\x1b[J"  #: cursor home, erase below: the ANSI redraw of a terminal
 _RING = 64  #: publications held between two refreshes, per key
-#: [s] a ``--once`` view waits this long for the servo's first loop report (about 1 Hz; later on a busy machine).
-ONCE_HEALTH_WAIT = 2.5
+#: [s] a ``--once`` view waits at most this long for the servo's first loop report (about 1 Hz; later on a
+#: busy machine) and a heartbeat of every service (10 Hz on one host, 5 Hz on a LAN): a service that is down
+#: never beats, and the view then shows it without one.
+ONCE_WAIT = 2.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,6 +161,11 @@ class Publications:
         self.beats: dict[str, tuple[int, tuple[str, ...], float]] = {}  # service -> (seq, stuck, monotonic)
         self.errors: list[str] = []
 
+    @property
+    def complete(self) -> bool:
+        """Whether a loop report and a heartbeat of every service have come."""
+        return self.health is not None and all(service.value in self.beats for service in Service)
+
     def drain(self) -> None:
         for sub in self._subs:
             while (sample := sub.try_recv()) is not None:
@@ -229,9 +236,9 @@ def run_state(client: Arm, stop: threading.Event, out: TextIO, *, once: bool, pe
     pubs = Publications(client.session, client)
     try:
         axis_num = _axis_num(client)
-        if once:  # the loop report comes about once a second: give it that long
-            deadline = time.monotonic() + ONCE_HEALTH_WAIT
-            while pubs.health is None and time.monotonic() < deadline and not stop.wait(0.05):
+        if once:  # a view right after subscribing would miss what is published every 0.1-1 s
+            deadline = time.monotonic() + ONCE_WAIT
+            while not pubs.complete and time.monotonic() < deadline and not stop.wait(0.05):
                 pubs.drain()
         while True:
             lines = render(snapshot(client, pubs, axis_num))
