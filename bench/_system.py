@@ -17,6 +17,26 @@ import zenoh
 from jara_arm.services.runtime.zenoh_args import zenoh_config
 
 
+def end(proc: subprocess.Popen, sig: signal.Signals = signal.SIGTERM, grace: float = 20.0, group: bool = True) -> None:
+    """``proc`` ended: ``sig``, then SIGKILL after ``grace`` [s]. Where it leads a process group (the launcher, the
+    tools and Chromium run in sessions of their own), SIGKILL goes to the whole group, and ``sig`` too if ``group``
+    (else only to ``proc``: the launcher stops its services itself)."""
+    def signal_it(s: signal.Signals, whole: bool) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            if whole and os.getpgid(proc.pid) == proc.pid:
+                os.killpg(proc.pid, s)
+            else:
+                proc.send_signal(s)
+
+    if proc.poll() is None:
+        signal_it(sig, group)
+        try:
+            proc.wait(grace)
+        except subprocess.TimeoutExpired:
+            signal_it(signal.SIGKILL, True)
+            proc.wait()
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -58,11 +78,7 @@ def launched_system(robot: str = "iiwa", arm: str = "arm0", timeout: float = 60.
             raise RuntimeError("the system did not get ready:\n" + "".join(lines))
         yield port
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(15)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
+        end(proc, signal.SIGINT, 15.0, group=False)
 
 
 @contextlib.contextmanager

@@ -52,7 +52,7 @@ import numpy as np
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _system import client, free_port, launched_system  # noqa: E402
+from _system import client, end, free_port, launched_system  # noqa: E402
 import cpu  # noqa: E402
 from motion import speed_dipped  # noqa: E402
 from starts import STUTTER  # noqa: E402
@@ -187,25 +187,6 @@ def start_view(port: int, workdir: Path) -> list[subprocess.Popen]:
         end(view)
         raise
     return [view, page]
-
-
-def end(proc: subprocess.Popen) -> None:
-    """``proc`` ended, with its process group where it leads one (the tools and Chromium run in sessions of their
-    own: Chromium's renderer and GPU processes end with it)."""
-    def signal_it(sig: signal.Signals) -> None:
-        with contextlib.suppress(ProcessLookupError):
-            if os.getpgid(proc.pid) == proc.pid:
-                os.killpg(proc.pid, sig)
-            else:
-                proc.send_signal(sig)
-
-    if proc.poll() is None:
-        signal_it(signal.SIGTERM)
-        try:
-            proc.wait(20)
-        except subprocess.TimeoutExpired:
-            signal_it(signal.SIGKILL)
-            proc.wait()
 
 
 def poses(model_name: str) -> tuple[tuple[float, ...], tuple[float, ...]]:

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _system import free_port  # noqa: E402
+from _system import end, free_port  # noqa: E402
 
 STUTTER = ("held at its last sample", "ran dry", "mid-motion for late commands")
 ALARM = re.compile(r"alarm 0x[0-9a-f]+ (FAULT|WARNING)|raised")
@@ -54,11 +54,7 @@ def one_run(robot: str, timeout: float) -> dict:
     finished = done.wait(timeout)
     demo_s = time.monotonic() - t0
     time.sleep(1.0)  # anything raised right after the demo's end
-    proc.send_signal(signal.SIGINT)
-    try:
-        proc.wait(20)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
+    end(proc, signal.SIGINT, 20.0, group=False)
     text = "".join(lines)
     return {
         "ready_s": ready_at[0] if ready_at else None,

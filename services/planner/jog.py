@@ -23,6 +23,11 @@ slows down and goes on. The path and the speed along it: ``jog_path.py``; the sp
 the servo, as any motion.
 
 No I/O but through :class:`~.handover.Handover`; tests: ``tests/test_jog.py``.
+
+Over 500 lines on purpose: the ways a jog starts, is renewed, extended, cut before a limit, stopped and lapses
+all read and change the one :class:`_Jog` under one lock, racing the client's renewals against the jog thread;
+kept together, each rule about the lease is seen beside the others. What stands alone is outside: the path
+and the speed along it (``jog_path.py``), the request (``jog_request.py``), the checks (``checks.py``).
 """
 
 from __future__ import annotations
