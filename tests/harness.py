@@ -277,10 +277,15 @@ class PosCommands:
         self._pub.put(codec.encode_message(w.TIMED_JOINT_POS, TimedJointPos(Time.now(), tuple(map(float, q)))))
         return time.time()
 
-    def stream(self, points: np.ndarray, lead: int = 100, realtime: bool = True) -> list[float]:
+    def stream(self, points: np.ndarray, lead: int = 400, realtime: bool = True) -> list[float]:
         """Publish ``points`` keeping ``lead`` commands ahead of the servo, then one per cycle; their
         publication times. ``realtime``: every thread of this process at ``STREAM_PRIORITY`` meanwhile, as a
-        low-level client's stack must be (``realtime_process_section``)."""
+        low-level client's stack must be (``realtime_process_section``).
+
+        400 ahead: at 100, beside a busy loop per core and another worker's cell (whose servo and bus run at
+        higher real-time priorities than this stream), the stream was held up long enough that the servo
+        rightly ran dry and stopped a third of the way (CI run 81), as the alarm tests' stream once did, held up
+        300 ms at normal priority."""
         sent = []
         with realtime_process_section(STREAM_PRIORITY) if realtime else contextlib.nullcontext():
             t0 = time.monotonic()

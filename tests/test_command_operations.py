@@ -327,7 +327,7 @@ def stream_to(real: Rig, target, duration: float = 0.8) -> None:
     n = int(duration / IIWA.cmd_cycle)
     u = np.arange(n + 1)[:, None] / n  # one command per cycle, minimum jerk
     commands = PosCommands(real.session, real.keys, IIWA.cmd_cycle)
-    commands.stream(q0 + (np.asarray(target) - q0) * (10 * u**3 - 15 * u**4 + 6 * u**5))  # 100 commands ahead
+    commands.stream(q0 + (np.asarray(target) - q0) * (10 * u**3 - 15 * u**4 + 6 * u**5))
     commands.close()
     real.wait_rest()
 

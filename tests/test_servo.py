@@ -131,7 +131,7 @@ def test_streamed_trajectory_is_followed(rig: Rig):
     assert rig.state() & StateBit.MOVING
     rig.wait_rest()
     fb = rig.recorded()
-    assert np.abs(fb[-1] - q1).max() < 2e-4, fb[-1] - q1
+    assert np.abs(fb[-1] - q1).max() < 2e-4, f"{fb[-1] - q1}\n{rig.log_tail()}"
     # Every feedback sample lies near the commanded path (lag of a few cycles at most).
     dist = np.min(np.linalg.norm(fb[:, None, :] - path[None, ::5, :], axis=2), axis=1)
     assert dist.max() < 5e-3, dist.max()
