@@ -167,9 +167,10 @@ def test_stop_discards_the_queue(arm: Arm):
 def test_queue_full(arm: Arm):
     arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 1}))
     step = np.zeros(arm.model.axis_num)
-    # [rad] 30 s per motion at 1 %: they pile up even when the 32 calls take seconds (0.2 rad, 9-12 s a motion,
-    # let a panda's first motion end before its 33rd call, 10 s after the first, in CI run 81: busy cores).
-    step[0] = 30.0 * 0.01 * arm.model.rated_speed[0]
+    # [rad] at 1 %: 9-12 s per motion, so they pile up even when 32 calls take seconds (busy cores). Not longer:
+    # 30 s motions (30,000 samples each) made a plan take over the command's 5 s beside busy loops (CI run 87);
+    # at 0.2 rad a panda's first motion once ended before its 33rd call, 10 s after the first (CI run 81).
+    step[0] = 0.2
     for i in range(32):
         arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": tuple(step if i % 2 == 0 else -step)}))
     full = arm.middle(OP.movePTPJointRel, {"jointPoints": tuple(step)})
