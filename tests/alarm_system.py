@@ -124,16 +124,6 @@ class AlarmArm(RecordingArm):
         self.settings.wait(lambda s: tuple((lim.upper, lim.lower) for lim in s.softLimitCartesian) == want,
                            f"the command's settings with the Cartesian box {want}", timeout, 0.01)
 
-    def stream(self, points: np.ndarray) -> list[float]:
-        """Publish ``points`` in real time, ahead of the servo (``harness.PosCommands.stream``); their
-        publication times."""
-        # A low-level client keeps a 1 kHz stream fed from real-time threads, as a real one must: at
-        # normal priority beside a busy loop per core this one ran dry mid-motion, and the servo then
-        # rightly refused the rest of it (a stream that goes on mid-motion is not taken up again). The
-        # sending thread alone at real-time priority was not enough: a stream sent whole at once ran dry
-        # 0.2 s in, its samples waiting in the session's transmission thread (1 fresh-clone CI run of 5).
-        return self.commands.stream(points, realtime=True)
-
     def goto(self, q: np.ndarray, speed: int = 60, attempts: int = 3) -> None:
         """A PTP to ``q``, run to its end (again if the planner gave up on it on a busy machine)."""
         self.ok(self.middle(OP.setSpeedJoint, {"spdRatio": speed}))

@@ -177,7 +177,7 @@ def test_position_stream_that_jumps(arm: AlarmArm):
     path[jump:, 2] += VMAX[2] * DT * OVERSPEED_MARGIN * 3  # J3 jumps, then goes on from there
     since = arm.mark()
     base = arm.consumed()
-    sent = arm.stream(path[: jump + 50])
+    sent = arm.commands.stream(path[: jump + 50])
     t, event = arm.event(AlarmCode.OVERSPEED, since)
     taken = arm.statuses.until(lambda s: s.consumed >= base + jump + 1, "a status with the jump taken")
     latency("jump in the stream (servo takes it)", arm.consumed_at(taken, base + jump + 1), t)
@@ -197,7 +197,7 @@ def test_position_stream_that_leaves_the_joint_soft_limits(arm: AlarmArm):
     path = min_jerk(q0, q0 - np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)  # through the lower limit
     since = arm.mark()
     base = arm.consumed()
-    sent = arm.stream(path)
+    sent = arm.commands.stream(path)
     t, event = arm.event(AlarmCode.SOFT_LIMIT_JOINT, since)
     # The servo refuses the first command from which it could not stop before the limit
     # (its description names it): the cycle it takes that command is the cause.
@@ -225,7 +225,7 @@ def test_control_point_crosses_the_cartesian_soft_limits(arm: AlarmArm):
     q1 = q0 + np.array([0.0, -0.4, 0.0, 0.3, 0.0, 0.0, 0.0])
     assert arm.kin.fk(q1).translation[2] > z0 + 0.06, "the test motion must lift the flange"
     since = arm.mark()
-    arm.stream(min_jerk(q0, q1, 0.8))
+    arm.commands.stream(min_jerk(q0, q1, 0.8))
     t, event = arm.event(AlarmCode.SOFT_LIMIT_CARTESIAN, since)
     tm, q = arm.recorded_timed()
     z = np.array([arm.kin.fk(x[:N]).translation[2] for x in q])
