@@ -165,20 +165,25 @@ def test_stop_discards_the_queue(arm: Arm):
 
 
 def test_queue_full(arm: Arm):
-    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 1}))
+    # Filled behind a paused motion, so that none ends while the 32 calls go on, however slow the cores are:
+    # motions that only outlast the calls needed either 9-12 s each at 1 % (one ended before the 33rd call
+    # beside busy loops, CI run 81) or 30 s each (one plan then took over the command's 5 s, CI run 87).
+    arm.ok(arm.middle(OP.setSpeedJoint, {"spdRatio": 10}))
     step = np.zeros(arm.model.axis_num)
-    # [rad] at 1 %: 9-12 s per motion, so they pile up even when 32 calls take seconds (busy cores). Not longer:
-    # 30 s motions (30,000 samples each) made a plan take over the command's 5 s beside busy loops (CI run 87);
-    # at 0.2 rad a panda's first motion once ended before its 33rd call, 10 s after the first (CI run 81).
-    step[0] = 0.2
-    for i in range(32):
+    step[0] = 0.1
+    arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": tuple(step)}))
+    arm.ok(arm.middle(OP.pause))
+    assert arm.common(OP.getState)["state"] & StateBit.PAUSED
+    for i in range(1, 32):
         arm.ok(arm.middle(OP.movePTPJointRel, {"jointPoints": tuple(step if i % 2 == 0 else -step)}))
     full = arm.middle(OP.movePTPJointRel, {"jointPoints": tuple(step)})
     assert full.id == ReturnCode.FULL_MOTION_QUEUE_ERR, full
-    assert arm.common(OP.getState)["state"] & StateBit.BUFFER_FULL
+    state = arm.common(OP.getState)["state"]
+    assert state & StateBit.BUFFER_FULL and state & StateBit.PAUSED, state
     arm.ok(arm.middle(OP.stop))
-    arm.idle()
-    assert not arm.common(OP.getState)["state"] & StateBit.BUFFER_FULL
+    arm.wait_rest()
+    state = arm.common(OP.getState)["state"]
+    assert not state & (StateBit.BUFFER_FULL | StateBit.PAUSED), state
 
 
 def test_refusals_change_nothing(arm: Arm):
