@@ -32,7 +32,7 @@ from .harness import LiveArm, launched
 from .support import client_session
 
 #: The files that take longest, longest first (one process, quiet, 2026-11-28: from 144 s down to 20 s): they
-#: run first, so that on two workers (``make test``'s default, each file whole on one worker) the long
+#: run first, so that on the workers of ``make test`` (three, each file whole on one worker) the long
 #: ones start at once and the short ones fill in around them, instead of a long file starting last.
 LONGEST_FIRST = ("test_families.py", "test_isolation.py", "test_view.py", "test_launcher.py", "test_jog.py",
                  "test_cell_hosts.py", "test_program.py", "test_middle.py", "test_alarms_services.py",

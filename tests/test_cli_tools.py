@@ -420,7 +420,10 @@ def test_live_echo_thins_the_feedback_stream(arm: Arm) -> None:
                for line in run.stdout.splitlines()]
     assert len(samples) == 5 and all(len(s.pos) >= arm.model.axis_num for s in samples)
     gaps = np.diff([s.tm.to_seconds() for s in samples])
-    assert gaps.min() > 0.05, gaps  # 10 Hz of a 1 kHz stream (receipt times jitter)
+    # 10 Hz of a 1 kHz stream, kept by receipt time from each due time (``echo.Thinner``): the 5 samples span
+    # at least 0.4 s as received, less the first one's extra delivery delay (0.1 s allowed). Not each gap: a
+    # sample received late is followed by one on the due time (stamps 0.17 s then 0.04 s apart, a busy host).
+    assert gaps.sum() > 0.3, gaps
 
 
 @pytest.mark.timeout(120)
