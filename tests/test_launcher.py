@@ -171,10 +171,16 @@ def test_children_exit_when_the_launcher_is_killed() -> None:
     with launched(checked=False) as (proc, port):
         pids = [pid for _, _, pid in started_pids(proc)]
         assert len(pids) == len(NAMES)
+        # The client gateway too: left running, it held the listen port, and the next `jara-arm up` could not open.
+        gateway = [int(m[1]) for line in list(proc.lines) if (m := re.search(r"started client gateway: pid (\d+)", line))]
+        assert len(gateway) == 1, proc.output
         os.kill(proc.popen.pid, signal.SIGKILL)  # no chance to stop them: --exit-with-parent does
         proc.popen.wait(5)
-        wait_until(lambda: not any(proc_alive(p) for p in pids), timeout=15,
-                   what="the orphaned services to exit")
+        wait_until(lambda: not any(proc_alive(p) for p in pids + gateway), timeout=15,
+                   what="the orphaned services and the client gateway to exit")
+        with socket.socket() as s:  # the port is free again (SO_REUSEADDR: a closed connection's TIME_WAIT is no owner)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            s.bind(("127.0.0.1", port))
 
 
 @pytest.mark.timeout(40)

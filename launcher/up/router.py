@@ -208,6 +208,8 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     role.add_argument("--bus", action="store_true",
                       help="a router of the cell bus, which only services and gateways join: its blocking "
                       "publications (low-level position commands) reach the gateways as best effort")
+    parser.add_argument("--exit-with-parent", action="store_true",
+                        help="exit when the launching process dies (set by `jara-arm up` for its gateway)")
     parser.add_argument("--gateway-id", action="append", default=[], metavar="HEX",
                         help=f"the gateway's Zenoh id (default: {GATEWAY_ZID}); with --bus, every "
                         "gateway's (repeatable)")
@@ -218,6 +220,8 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     settings = router_settings(args, parser)
     setup_logging(args.log_level)
     signals = StopSignals()
+    if args.exit_with_parent:
+        signals.exit_with_parent(lambda parent: log.warning("launcher (pid %d) is gone, stopping", parent))
     try:
         return run_router(settings, signals)
     except RouterError as exc:

@@ -111,8 +111,8 @@ def gateway_settings(settings: UpSettings, bus: str) -> RouterSettings:
 def gateway_child(settings: UpSettings, bus: str) -> Child:
     """``jara-arm router --gateway`` as a child process of the launcher."""
     g = gateway_settings(settings, bus)
-    argv = [sys.executable, "-m", "jara_arm.launcher", "router", "--gateway", "--log-level", settings.log_level,
-            "--connect", bus, *[a for e in g.listen for a in ("--listen", e)]]
+    argv = [sys.executable, "-m", "jara_arm.launcher", "router", "--gateway", "--exit-with-parent",
+            "--log-level", settings.log_level, "--connect", bus, *[a for e in g.listen for a in ("--listen", e)]]
     if g.config:
         argv += ["--config", os.path.abspath(g.config)]
     if g.secure:

@@ -35,7 +35,6 @@ import contextlib
 import faulthandler
 import gc
 import logging
-import os
 import sys
 import threading
 import time
@@ -243,18 +242,10 @@ def _depart(stop: threading.Event, heartbeat: Heartbeat, token: zenoh.Liveliness
 
 def stop_event(exit_with_parent: bool = False) -> threading.Event:
     """An event set by SIGINT/SIGTERM (logged; see :class:`StopSignals`), and by the parent's death if asked."""
-    stop = StopSignals(lambda name: log.info("received %s, shutting down", name)).stop
+    signals = StopSignals(lambda name: log.info("received %s, shutting down", name))
     if exit_with_parent:
-        parent = os.getppid()
-
-        def _watch_parent() -> None:
-            while not stop.wait(0.5):
-                if os.getppid() != parent:
-                    log.warning("launcher (pid %d) is gone, shutting down", parent)
-                    stop.set()
-
-        threading.Thread(target=_watch_parent, name="parent-watch", daemon=True).start()
-    return stop
+        signals.exit_with_parent(lambda parent: log.warning("launcher (pid %d) is gone, shutting down", parent))
+    return signals.stop
 
 
 _SHARED = {"arm", "robot", "log_level", "exit_with_parent", "mode", "listen", "connect", "config",
