@@ -171,14 +171,15 @@ def test_driven_into_an_obstacle(arm: AlarmArm):
 
 def test_position_stream_that_jumps(arm: AlarmArm):
     """A jump in a low-level stream: FAULT 0x03, not applied, servo off, stop without a jump."""
-    q0 = arm.target()
-    path = min_jerk(q0, q0 + np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)
     jump = 300
-    path[jump:, 2] += VMAX[2] * DT * OVERSPEED_MARGIN * 3  # J3 jumps, then goes on from there
-    since = arm.mark()
-    base = arm.consumed()
-    sent = arm.commands.stream(path[: jump + 50])
-    t, event = arm.event(AlarmCode.OVERSPEED, since)
+
+    def jumping(q0: np.ndarray) -> np.ndarray:
+        path = min_jerk(q0, q0 + np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)
+        path[jump:, 2] += VMAX[2] * DT * OVERSPEED_MARGIN * 3  # J3 jumps, then goes on from there
+        return path[: jump + 50]
+
+    run = arm.stream_to(AlarmCode.OVERSPEED, jumping)
+    q0, base, sent, t, event = run.path[0], run.base, run.sent, run.t, run.event
     taken = arm.statuses.until(lambda s: s.consumed >= base + jump + 1, "a status with the jump taken")
     latency("jump in the stream (servo takes it)", arm.consumed_at(taken, base + jump + 1), t)
     assert event.alarm.type is AlarmType.FAULT and "J3" in event.alarm.description
@@ -194,11 +195,9 @@ def test_position_stream_that_leaves_the_joint_soft_limits(arm: AlarmArm):
     limits = list(IIWA.hard_limits)
     limits[0] = LimitValue(upper=q0[0] + 0.5, lower=q0[0] - 0.1)
     arm.ok(arm.common(OP.setSoftLimitJoint, {"softLimit": limits}))
-    path = min_jerk(q0, q0 - np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6)  # through the lower limit
-    since = arm.mark()
-    base = arm.consumed()
-    sent = arm.commands.stream(path)
-    t, event = arm.event(AlarmCode.SOFT_LIMIT_JOINT, since)
+    run = arm.stream_to(AlarmCode.SOFT_LIMIT_JOINT,  # through the lower limit
+                        lambda start: min_jerk(start, start - np.array([0.3, 0, 0, 0, 0, 0, 0]), 0.6))
+    path, base, sent, t, event = run.path, run.base, run.sent, run.t, run.event
     # The servo refuses the first command from which it could not stop before the limit
     # (its description names it): the cycle it takes that command is the cause.
     refused = float(re.search(r"J1=(\S+) ", event.alarm.description)[1])
@@ -224,9 +223,8 @@ def test_control_point_crosses_the_cartesian_soft_limits(arm: AlarmArm):
     arm.wait_cartesian_box(box)  # the monitor has the new settings
     q1 = q0 + np.array([0.0, -0.4, 0.0, 0.3, 0.0, 0.0, 0.0])
     assert arm.kin.fk(q1).translation[2] > z0 + 0.06, "the test motion must lift the flange"
-    since = arm.mark()
-    arm.commands.stream(min_jerk(q0, q1, 0.8))
-    t, event = arm.event(AlarmCode.SOFT_LIMIT_CARTESIAN, since)
+    run = arm.stream_to(AlarmCode.SOFT_LIMIT_CARTESIAN, lambda start: min_jerk(start, q1, 0.8))
+    t, event = run.t, run.event
     tm, q = arm.recorded_timed()
     z = np.array([arm.kin.fk(x[:N]).translation[2] for x in q])
     crossed = tm[int(np.argmax(z > box["zLimit"].upper + 1e-3))]
