@@ -68,7 +68,6 @@ class Streamed:
     """A low-level stream and the alarm event it raised (:meth:`AlarmArm.stream_to`)."""
 
     path: np.ndarray  # [rad] the commands streamed, one per servo cycle
-    since: int  # the index of the first alarm event after the stream began
     base: int  # the commands the servo had taken before it (``consumed``)
     sent: list[float]  # [s, wall] each command's publication
     t: float  # [s, wall] the event's receipt
@@ -122,23 +121,23 @@ class AlarmArm(RecordingArm):
         this client's 1 kHz stream crosses the client gateway, at normal priority by design, and on a
         saturated host (three test workers, CI runs 84 and 93) it was held up long enough (README, "plain
         client")."""
-        for attempt in range(2):
-            q0 = self.target()
-            path = make(q0)
-            since, base = self.mark(), self.consumed()
-            lines = len(self.proc.lines) if self.proc is not None else 0
-            sent = self.commands.stream(path)
-            try:
-                t, event = self.event(code, since)
-                return Streamed(path, since, base, sent, t, event)
-            except AssertionError:
-                dry = self.proc is not None and any("ran dry" in line for line in self.proc.lines[lines:])
-                if attempt or not dry:
-                    raise
-                print(f"the stream ran dry before its 0x{code:02x}: streamed again from where the arm stopped\n"
-                      f"{self.log_tail()}", file=sys.stderr)
-                self.wait_rest()
-        raise AssertionError("unreachable")
+        lines = len(self.proc.lines) if self.proc is not None else 0
+        try:
+            return self._stream_once(code, make)
+        except AssertionError:
+            if self.proc is None or not any("ran dry" in line for line in self.proc.lines[lines:]):
+                raise
+            print(f"the stream ran dry before its 0x{code:02x}: streamed again from where the arm stopped\n"
+                  f"{self.log_tail()}", file=sys.stderr)
+            self.wait_rest()
+        return self._stream_once(code, make)
+
+    def _stream_once(self, code: AlarmCode, make: Callable[[np.ndarray], np.ndarray]) -> Streamed:
+        path = make(self.target())
+        since, base = self.mark(), self.consumed()
+        sent = self.commands.stream(path)
+        t, event = self.event(code, since)
+        return Streamed(path, base, sent, t, event)
 
     def under_way(self, base: int, cycles: int, timeout: float = 10.0) -> None:
         """Until the servo has taken ``cycles`` commands since it had taken ``base`` (``consumed``):
