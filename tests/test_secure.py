@@ -13,6 +13,7 @@ import contextlib
 import datetime
 import json
 import signal
+import sys
 import time
 import urllib.request
 from collections.abc import Iterator
@@ -230,6 +231,25 @@ def _stream_towards(session: zenoh.Session, clock: ServoTime, delta: float, dura
     return q0
 
 
+def _low_level_stream_moves_j1(cell: SecureCell, clock: ServoTime, session: zenoh.Session) -> None:
+    """The stream moves J1 by more than 0.01 rad of its 0.05. One that ran dry first (the servo's controlled
+    stop, which it logs and rightly raises nothing for) is streamed again from where the arm stopped, once:
+    the stream crosses the router at normal priority, and on a saturated host (three test workers: CI run 84,
+    and the CI run of stop 48) it was held up long enough (README, "plain client")."""
+    for attempt in range(2):
+        mark = cell.log_mark()
+        q0 = _stream_towards(session, clock, 0.05)
+        moved = abs(clock.settled()[0] - q0[0])
+        if moved > 0.01:
+            return
+        assert cell.proc is not None
+        log = cell.proc.lines[mark:]
+        if attempt or not any("ran dry" in line for line in log):
+            raise AssertionError(f"the low-level stream moved J1 by {moved:.4g} rad of 0.05:\n" + "\n".join(log[-30:]))
+        print(f"the low-level stream ran dry {moved:.4g} rad in: streamed again from where the arm stopped",
+              file=sys.stderr)
+
+
 def test_posCmd_needs_the_low_level_role(cell: SecureCell, operator: Client) -> None:
     """An operator peer publishing position commands and heartbeats changes nothing; a low-level one moves
     the arm (the same stream, so the first test could fail)."""
@@ -251,9 +271,7 @@ def test_posCmd_needs_the_low_level_role(cell: SecureCell, operator: Client) -> 
         _, q = clock.sample()
         assert np.allclose(q, q0, atol=1e-6), "the operator's position commands moved the arm"
     with cell.session("lowell") as s:
-        clock = ServoTime(s, KEYS)
-        q0 = _stream_towards(s, clock, 0.05)
-        wait_until(lambda: abs(clock.sample()[1][0] - q0[0]) > 0.01, what="the low-level stream moving J1")
+        _low_level_stream_moves_j1(cell, ServoTime(s, KEYS), s)
     operator.wait_idle()
     assert not operator.state & StateBit.ALARM, operator.common(OP.getActiveAlarm)
 
