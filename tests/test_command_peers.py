@@ -57,6 +57,7 @@ RATED = IIWA.rated_speed
 OK, NG = ReturnCode.OK, ReturnCode.NG
 VALUE_ERR, STATUS_ERR = ReturnCode.VALUE_ERR, ReturnCode.STATUS_ERR
 FAKE_PLAN_TIMEOUT = 0.5  # [s] --plan-timeout of the fake rig's command
+FAKE_HUNG_AFTER = 2.0  # [s] --hung-after of the fake rig's command (the same-host profile's is 1.5)
 
 
 class FakePeers:
@@ -208,7 +209,8 @@ def fake_rig() -> Iterator[tuple[LiveArm, FakePeers]]:
         try:
             with Processes() as procs:
                 command = procs.start(service_argv(Service.COMMAND, port, "fake", IIWA.name, "--plan-timeout",
-                                                   str(FAKE_PLAN_TIMEOUT), client=True))
+                                                   str(FAKE_PLAN_TIMEOUT), "--hung-after", str(FAKE_HUNG_AFTER),
+                                                   client=True))
                 wait_alive(session, "fake", [Service.COMMAND], timeout=60)
                 yield LiveArm(session, arm="fake", proc=command), peers
         finally:
@@ -474,7 +476,10 @@ def test_silent_planner_and_servo_are_named(fake):
     assert rig.client.ext(OP.getSpeedOverride)["ratio"] == 100.0  # the planner's last word, still held
     peers.hang = False
     peers.talking.clear()  # the servo falls silent
-    wait_until(lambda: not rig.state() & StateBit.SERVO_ON, 3, what="servo bit cleared")
+    silent = time.monotonic()  # its last status went out 10 ms before at most
+    wait_until(lambda: not rig.state() & StateBit.SERVO_ON, FAKE_HUNG_AFTER + 3, 0.02, what="servo bit cleared")
+    # Said off at the system's hung bound (when a monitor says 0x410), not at a silence of its own reckoning.
+    assert time.monotonic() - silent > FAKE_HUNG_AFTER - 0.02
     r = rig.client.middle(OP.goHome)
     assert r.id == ReturnCode.NOT_SV_ON_ERR and "Servo/status" in r.comment, r
     peers.talking.set()

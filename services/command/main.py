@@ -69,7 +69,7 @@ class CommandService(ArmService):
     def start(self, ctx: ServiceContext) -> None:
         session, keys, robot, opts = ctx.session, ctx.keys, ctx.model, ctx.options
         state_pub = ctx.enter(Publication(session, keys.state))
-        tracker = StateTracker(lambda v: state_pub.put(state_payload(v, state_pub.encoding)))
+        tracker = StateTracker(lambda v: state_pub.put(state_payload(v, state_pub.encoding)), ctx.health.hung_after)
         watcher = Watcher(session, keys, tracker, ctx.heartbeat().pulse("the state watcher"))
         watcher.start()
         ctx.closing(watcher.stop)

@@ -3,8 +3,11 @@
 The command owns none of the facts it reports; it reads each from its owner:
 
 * 0x01 servo on: the servo's ``Servo/status`` says so, and it spoke within
-  ``stale_after``; a silent servo counts as off (a real drive that stops
-  talking faults).
+  ``stale_after``, the system's hung bound (``Health.hung_after``: 1.5 s on
+  one host, 5 s on a LAN); a servo silent longer counts as off (a real drive
+  that stops talking faults), at the moment the alarm monitor judges it hung
+  (0x410), not before: a shorter silence is a stall, and the state of a servo
+  that is on does not flicker off without an alarm.
 * 0x02 moving: the servo moves, or the planner's queue holds motions
   (running, waiting or paused: the arm is not done with them).
 * 0x04 alarm: the alarm monitor's list (``Monitor/alarms``, while the monitor
@@ -40,12 +43,16 @@ from jara_arm.schema.codes import AlarmType, StateBit
 from jara_arm.schema.messages import ServoStatus
 from jara_arm.schema.planner import QUEUE_CAPACITY, PlannerProgress
 from jara_arm.schema.types import LimitValue
+from jara_arm.services.runtime.timing import SAME_HOST
 
 log = logging.getLogger(__name__)
 
-#: Without a ``Servo/status`` for this long the servo counts as gone [s]
-#: (it publishes every 10 cycles, i.e. at 100 Hz with a 1 ms cycle).
-STATUS_STALE_AFTER = 1.0
+#: Without a ``Servo/status`` for this long the servo counts as gone [s] unless the service says otherwise:
+#: the same-host hung bound (the servo publishes every 10 cycles moving, every 100 at rest). It was 1.0 s,
+#: shorter than the hung bound: an 8-arm soak on 2 cores published 0x02 (moving, servo off) for a servo
+#: that was on and raised nothing (a bus held up 1.2 s), and on a LAN cell (hung after 5 s) every network
+#: hiccup over 1 s did the same.
+STATUS_STALE_AFTER = SAME_HOST.hung_after
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +85,7 @@ class StateTracker:
     """Thread-safe state of the command service; publishes on every change."""
 
     def __init__(self, publish: Publish, stale_after: float = STATUS_STALE_AFTER) -> None:
+        """``stale_after`` [s]: a servo silent this long counts as off (the service passes its hung bound)."""
         self._publish = publish
         self._stale_after = stale_after
         self._cond = threading.Condition()

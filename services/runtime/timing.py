@@ -64,7 +64,7 @@ MONITOR_WAIT: Final = 0.05
 #: The command service's state watcher drains its inputs when one arrives, at most this often [s]
 #: (a call's catch-up drains at once: getState never waits on it).
 WATCHER_POLL: Final = 0.01
-#: ... and at least this often [s], to say off a servo silent for ``STATUS_STALE_AFTER`` (1 s).
+#: ... and at least this often [s], to say off a servo silent past the hung bound (``command/state.py``).
 WATCHER_WAIT: Final = 0.1
 #: A motion request listens this long for a ``Servo/status`` before it says none came [s] (the
 #: command's state and the planner's start point): on a saturated machine the asker's own receiving
