@@ -10,10 +10,11 @@ stop in the middle of a blend.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TypeVar
 
 import msgpack
@@ -321,14 +322,24 @@ class Arm(RecordingArm):
         """[m] the flange at the newest feedback sample."""
         return self.points(self.servo_time.sample()[1][None])[0]
 
-    def when_within(self, corner: np.ndarray, radius: float, then: Callable[[], T] = lambda: None) -> T:
-        """Until a feedback sample has the flange within ``radius`` [m] of ``corner``; then ``then()``, still
-        real-time (its result). Every sample is looked at, and the wait runs real-time: a test thread that
-        polled the newest sample beside busy loops missed the 0.1 s the flange spends there (a busy-loop CI
-        run timed out waiting)."""
-        session = self.client.session
-        with session.declare_subscriber(self.client.keys.pos_feedback, zenoh.handlers.FifoChannel(1 << 15)) as fb, \
-                realtime_section(STREAM_PRIORITY):
+    @contextlib.contextmanager
+    def every_sample(self) -> Iterator[zenoh.Subscriber]:
+        """A subscriber of every feedback sample, heard from (one sample in) before it is given: declared
+        before the motions it watches are queued. Declared after them, on a saturated host (three test
+        workers beside a busy loop per core) its route through the client gateway came after the flange had
+        passed the corner (a fresh-clone run waited 10 s for it)."""
+        with self.client.session.declare_subscriber(self.client.keys.pos_feedback,
+                                                    zenoh.handlers.FifoChannel(1 << 15)) as fb:
+            wait_until(lambda: fb.try_recv() is not None, 10.0, 0.005, "a feedback sample on the new subscriber")
+            yield fb
+
+    def when_within(self, fb: zenoh.Subscriber, corner: np.ndarray, radius: float,
+                    then: Callable[[], T] = lambda: None) -> T:
+        """Until a feedback sample of ``fb`` (``every_sample``) has the flange within ``radius`` [m] of
+        ``corner``; then ``then()``, still real-time (its result). Every sample is looked at, and the wait
+        runs real-time: a test thread that polled the newest sample beside busy loops missed the 0.1 s the
+        flange spends there (a busy-loop CI run timed out waiting)."""
+        with realtime_section(STREAM_PRIORITY):
             def near() -> bool:
                 while (s := fb.try_recv()) is not None:
                     q = np.array(codec.decode_message(w.TIMED_JOINT_POS, s.payload.to_bytes()).pos)
@@ -384,10 +395,11 @@ def test_live_zero_distance_stops_at_each_corner(arm: Arm):
 
 def test_live_pause_in_a_blend_holds_and_resume_reaches_the_end(arm: Arm):
     d = 0.02
-    corners = arm.square(d)
-    # Past the cut (d before the corner), in the blend: the pause asked at once, from the real-time wait.
-    reply = arm.when_within(corners[1], 0.6 * d, then=lambda: arm.middle(OP.pause))
-    answered = time.time()
+    with arm.every_sample() as fb:
+        corners = arm.square(d)
+        # Past the cut (d before the corner), in the blend: the pause asked at once, from the real-time wait.
+        reply = arm.when_within(fb, corners[1], 0.6 * d, then=lambda: arm.middle(OP.pause))
+        answered = time.time()
     arm.ok(reply)
     assert reply.comment.startswith("OK: pausing"), reply.comment  # the servo slows down on the blend itself
     wait_until(lambda: arm.common(OP.getState)["state"] & StateBit.PAUSED, 2.0, what="paused bit")
@@ -410,8 +422,10 @@ def test_live_pause_in_a_blend_holds_and_resume_reaches_the_end(arm: Arm):
 
 def test_live_stop_in_a_blend_ends_at_rest_and_the_queue_works_after(arm: Arm):
     d = 0.02
-    corners = arm.square(d)
-    reply, at_stop = arm.when_within(corners[1], 0.6 * d, then=lambda: (arm.middle(OP.stop), arm.flange_now()))
+    with arm.every_sample() as fb:
+        corners = arm.square(d)
+        reply, at_stop = arm.when_within(fb, corners[1], 0.6 * d,
+                                         then=lambda: (arm.middle(OP.stop), arm.flange_now()))
     arm.ok(reply)
     arm.idle()
     arm.servo_time.settled()  # at rest, not creeping
