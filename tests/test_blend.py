@@ -347,7 +347,8 @@ class Arm(RecordingArm):
                         return True
                 return False
 
-            wait_until(near, 10.0, 1e-3, f"the flange within {radius * 1e3:.0f} mm of the corner")
+            wait_until(near, 10.0, 1e-3, f"the flange within {radius * 1e3:.0f} mm of the corner",
+                       explain=self.explain)
             return then()
 
 
