@@ -202,6 +202,20 @@ class Recorder:
         while self._sub.try_recv() is not None:
             pass
 
+    def clear_through_now(self, timeout: float = 1.0) -> None:
+        """Forget what was recorded so far and what of it is still on its way: every sample up to the first
+        one the servo stamped now or later (it stamps every cycle; at rest with the cycle's wall-clock
+        time). On a saturated host the gateway relayed the end of a move after the test had cleared the
+        recording, and a LIN recorded from then began 45 mm off its line (fresh-clone run 104, a busy loop
+        per core). Without such a sample within ``timeout`` [s] (a servo stopped or gone), what arrived."""
+        now = time.time()
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            while (s := self._sub.try_recv()) is not None:
+                if timed_joints(s).tm.to_seconds() >= now:
+                    return
+            time.sleep(0.002)
+
     def timed(self) -> tuple[np.ndarray, np.ndarray]:
         """``(tm [s], joints)`` of every sample since the last read (the servo's times: a lost sample leaves a
         gap)."""
@@ -509,8 +523,8 @@ class RecordingArm(LiveArm):
         self.record()
 
     def record(self) -> None:
-        """Forget the feedback recorded so far: what follows is recorded."""
-        self.fb.clear()
+        """Forget the feedback recorded so far, that still on its way included: what follows is recorded."""
+        self.fb.clear_through_now()
 
     def recorded(self) -> np.ndarray:
         """The joints of every feedback sample since the last read."""

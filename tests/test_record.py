@@ -465,15 +465,26 @@ def test_live_a_replay_into_a_router_without_arms_gives_subscribers_the_same_seq
             assert run.popen.wait(240) == 0, run.output
             assert "replayed " in run.output and "not replayed" in run.output, run.output
             wanted = [zenoh.KeyExpr(key) for key in low_rate]
-            got, feedback, commands = [], 0, 0
-            for s in iter(every.try_recv, None):  # one subscriber: the order the replay published in
-                key = str(s.key_expr)
-                feedback += key == k.pos_feedback
-                commands += key in (k.pos_cmd, k.estop)
-                if any(w_.intersects(s.key_expr) for w_ in wanted):
-                    got.append((key, codec.loads(s.payload.to_bytes(), Encoding.of(s.encoding))))
+            recorded_feedback = len(list(read_messages(path, [k.pos_feedback])))
+            got: list[tuple[str, Any]] = []
+            feedback = commands = 0
+
+            def drained() -> bool:
+                """What arrived so far; whether it is all (the replay has exited, but the router may still be
+                forwarding its last samples: a busy-loop run found the last settings missing at once)."""
+                nonlocal feedback, commands
+                for s in iter(every.try_recv, None):  # one subscriber: the order the replay published in
+                    key = str(s.key_expr)
+                    feedback += key == k.pos_feedback
+                    commands += key in (k.pos_cmd, k.estop)
+                    if any(w_.intersects(s.key_expr) for w_ in wanted):
+                        got.append((key, codec.loads(s.payload.to_bytes(), Encoding.of(s.encoding))))
+                return len(got) >= len(expected) and feedback >= recorded_feedback
+
+            with contextlib.suppress(AssertionError):  # what is missing after 10 s: the asserts below say it
+                wait_until(drained, 10.0, 0.05, "every replayed sample")
             assert got == expected
-            assert feedback == len(list(read_messages(path, [k.pos_feedback])))
+            assert feedback == recorded_feedback
             assert commands == 0  # position commands and the e-stop are never replayed
     finally:
         router.stop(signal.SIGINT)
