@@ -238,3 +238,34 @@ def test_the_state_first_takes_in_what_arrived():
     tracker.catch_up = drain
     view = tracker.view()
     assert not view.moving and view.queue_length == 0 and view.servo_on, view
+
+
+def test_after_a_motion_done_the_joints_come_from_a_status_made_after_it():
+    """The planner's word that a motion is done and the servo's statuses take different paths: a status made
+    before the end may be the newest here while those after it are still on their way (or dropped). The
+    joints are read from one stamped at the word or later, waited for a moment (``ARRIVAL_LISTEN``)."""
+    from jara_arm.services.command.state import StateTracker
+    from jara_arm.services.runtime.timing import ARRIVAL_LISTEN
+
+    tracker = StateTracker(publish=lambda view: None)
+    z = (0.0,) * N
+    before = messages.ServoStatus(Time.now(), True, True, False, 0, 0, 0, 0, z, z, z, pos=(0.1,) * N, seq=1)
+    waiting: list[messages.ServoStatus] = []
+    tracker.catch_up = lambda: [tracker.on_status(waiting.pop()) for _ in list(waiting)] and None
+    tracker.on_status(before)
+    assert tracker.measured_joints()[0] == before.pos  # no motion done yet: no wait
+    time.sleep(0.01)
+    tracker.on_progress(dataclasses.replace(progress(seq=2), lastDone=1))  # stamped now: after ``before``
+    after = dataclasses.replace(before, tm=Time.now(), pos=(0.2,) * N, moving=False, seq=2)
+    threading.Timer(0.1, lambda: waiting.append(after)).start()
+    t0 = time.monotonic()
+    assert tracker.measured_joints()[0] == after.pos, "the pose from before the motion's end"
+    assert 0.08 < time.monotonic() - t0 < ARRIVAL_LISTEN
+    # Read again: the status after the end is in, no wait.
+    t0 = time.monotonic()
+    assert tracker.measured_joints()[0] == after.pos and time.monotonic() - t0 < 0.05
+    # None comes (a servo gone): the newest after the bound, not a hang.
+    tracker.on_progress(dataclasses.replace(progress(seq=3), lastDone=2))
+    t0 = time.monotonic()
+    assert tracker.measured_joints()[0] == after.pos
+    assert ARRIVAL_LISTEN - 0.01 < time.monotonic() - t0 < ARRIVAL_LISTEN + 0.2

@@ -72,6 +72,11 @@ WATCHER_WAIT: Final = 0.1
 #: the servo published on time). A servo really gone is the alarm monitor's to report (0x410); this
 #: only delays the refusal of a move sent to a silent servo.
 STATUS_LISTEN: Final = 0.5
+#: After the planner said a motion done, ``getFeedbackPosJoint`` / ``getFeedbackPosCartesian`` wait this long
+#: at most for a ``Servo/status`` stamped then or later [s]: the pose the motion ended at, not one from
+#: before its end still newest here. At rest the servo publishes every 100 ms, and at once when it stops
+#: moving; a servo on another host whose clock is behind by more than this makes the read wait this long.
+ARRIVAL_LISTEN: Final = 0.3
 #: While the servo slows down for a stop, the planner waits at most this long to learn where the
 #: arm stopped before it plans the next motion from there [s]: a stop from full speed takes
 #: about a min accel time (0.2-0.5 s for the robot models here).
