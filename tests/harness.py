@@ -202,12 +202,13 @@ class Recorder:
         while self._sub.try_recv() is not None:
             pass
 
-    def clear_through_now(self, timeout: float = 1.0) -> None:
+    def clear_through_now(self, timeout: float = 10.0) -> None:
         """Forget what was recorded so far and what of it is still on its way: every sample up to the first
         one the servo stamped now or later (it stamps every cycle; at rest with the cycle's wall-clock
-        time). On a saturated host the gateway relayed the end of a move after the test had cleared the
-        recording, and a LIN recorded from then began 45 mm off its line (fresh-clone run 104, a busy loop
-        per core). Without such a sample within ``timeout`` [s] (a servo stopped or gone), what arrived."""
+        time). On a saturated host the gateway's relay (normal priority) fell seconds behind: a LIN recorded
+        from a plain clear began 45 mm off its line (fresh-clone run 104, a busy loop per core), and with a
+        1 s bound here a blended square's recording began with the previous test's stop at a corner (run
+        107). Without such a sample within ``timeout`` [s] (a servo stopped or gone), what arrived."""
         now = time.time()
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
