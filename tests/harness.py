@@ -197,12 +197,7 @@ class Recorder:
         self._sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(1 << 17))
         self._explain = explain
 
-    def clear(self) -> None:
-        """Forget what was recorded so far."""
-        while self._sub.try_recv() is not None:
-            pass
-
-    def clear_through_now(self, timeout: float = 10.0) -> None:
+    def clear(self, timeout: float = 10.0) -> None:
         """Forget what was recorded so far and what of it is still on its way: every sample up to the first
         one the servo stamped now or later (it stamps every cycle; at rest with the cycle's wall-clock
         time). On a saturated host the gateway's relay (normal priority) fell seconds behind: a LIN recorded
@@ -525,7 +520,7 @@ class RecordingArm(LiveArm):
 
     def record(self) -> None:
         """Forget the feedback recorded so far, that still on its way included: what follows is recorded."""
-        self.fb.clear_through_now()
+        self.fb.clear()
 
     def recorded(self) -> np.ndarray:
         """The joints of every feedback sample since the last read."""

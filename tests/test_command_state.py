@@ -251,7 +251,12 @@ def test_after_a_motion_done_the_joints_come_from_a_status_made_after_it():
     z = (0.0,) * N
     before = messages.ServoStatus(Time.now(), True, True, False, 0, 0, 0, 0, z, z, z, pos=(0.1,) * N, seq=1)
     waiting: list[messages.ServoStatus] = []
-    tracker.catch_up = lambda: [tracker.on_status(waiting.pop()) for _ in list(waiting)] and None
+
+    def drain() -> None:
+        while waiting:
+            tracker.on_status(waiting.pop())
+
+    tracker.catch_up = drain
     tracker.on_status(before)
     assert tracker.measured_joints()[0] == before.pos  # no motion done yet: no wait
     time.sleep(0.01)

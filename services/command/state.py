@@ -108,13 +108,7 @@ class StateTracker:
         statuses waiting, where "no status" must mean none came, not none was read (8 arms on 2 cores: 13
         moves refused in 2 minutes for it). If there is still none, the view waits up to ``listen`` [s] for
         one (``timing.STATUS_LISTEN`` for a motion request)."""
-        if (catch_up := self.catch_up) is not None:
-            catch_up()
-            deadline = time.monotonic() + listen
-            while time.monotonic() - self._status_at > self._stale_after and time.monotonic() < deadline:
-                with self._cond:  # woken by on_status, or in a poll period to drain what came meanwhile
-                    self._cond.wait(min(0.02, max(0.0, deadline - time.monotonic())))
-                catch_up()
+        self._catch_up_while(lambda: time.monotonic() - self._status_at > self._stale_after, listen)
         with self._cond:
             return self._view()
 
@@ -146,21 +140,27 @@ class StateTracker:
         ``Planner/progress`` that its motion ended reads the pose it ended at, not an older one this service
         had not read yet (its watcher held up on a busy machine: the demo said a resumed LIN arrived 1 mm
         short, two test workers beside two busy loops)."""
-        if (catch_up := self.catch_up) is not None:
-            catch_up()
-            # A status the servo made before the planner said the motion done may be the newest here while
-            # those after it are still on their way (the progress and the statuses take different paths):
-            # one stamped then or later is waited for, a moment (the demo read a goHome 0.0032 rad short,
-            # three test workers beside a busy loop per core).
-            deadline = time.monotonic() + ARRIVAL_LISTEN
-            while self._before_done() and time.monotonic() < deadline:
-                with self._cond:  # woken by on_status
-                    self._cond.wait(min(0.02, max(0.0, deadline - time.monotonic())))
-                catch_up()
+        # A status the servo made before the planner said the motion done may be the newest here while those
+        # after it are still on their way (the progress and the statuses take different paths): one stamped
+        # then or later is waited for, a moment (the demo read a goHome 0.0032 rad short, three test workers
+        # beside a busy loop per core).
+        self._catch_up_while(self._before_done, ARRIVAL_LISTEN)
         st, at = self._status, self._status_at  # one read each: the watcher replaces them
         if st is None or not st.pos:
             return None
         return st.pos, time.monotonic() - at
+
+    def _catch_up_while(self, pending: Callable[[], bool], seconds: float) -> None:
+        """Take in what arrived (``catch_up``), then, while ``pending()``, wait up to ``seconds`` [s] for more
+        (woken by ``on_status``, or every 20 ms to drain what came meanwhile). Without a watcher: nothing."""
+        if (catch_up := self.catch_up) is None:
+            return
+        catch_up()
+        deadline = time.monotonic() + seconds
+        while pending() and time.monotonic() < deadline:
+            with self._cond:
+                self._cond.wait(min(0.02, max(0.0, deadline - time.monotonic())))
+            catch_up()
 
     def _before_done(self) -> bool:
         """The newest status was stamped before the planner's word that the last motion was done."""
