@@ -31,7 +31,7 @@ import viser
 
 from jara_arm.kinematics import hg_to_se3
 from jara_arm.robots import RobotModel
-from jara_arm.schema.messages import ServoWorld
+from jara_arm.schema.messages import ServoWorld, WorldBox
 from jara_arm.schema.planner import MotionSettings
 
 Rgb = tuple[int, int, int]
@@ -43,6 +43,10 @@ LIMIT_COLOR: Rgb = (240, 160, 0)
 PATH_COLOR: Rgb = (0, 170, 255)
 #: Links drawn in this colour while the arm is gone (its servo's token is down).
 GONE_COLOR: Rgb = (120, 120, 120)
+#: A change of the measured joints that the page does not redraw [rad or m]: 20 µm at 2 m from the base, under a
+#: pixel of any view. At rest the simulated joints wander by about 5e-7 rad, and redrawing that at every status
+#: (10 Hz) kept the browser drawing 60 frames a second of an arm standing still: about a core of software WebGL.
+UNDRAWN_CHANGE = 1e-5
 
 
 class ShapeKind(enum.Enum):
@@ -186,9 +190,11 @@ class ArmScene:
         self._robot_frame = scene.add_frame(f"{root}/arm/robot", show_axes=True, axes_length=0.1,
                                             axes_radius=0.003)
         self._limits: viser.SceneNodeHandle | None = None
+        self._limits_drawn: tuple[tuple[float, ...], tuple[float, ...]] | None = None  # (centre, size) [m]
         self._control_point = scene.add_frame(f"{root}/arm/control_point", axes_length=0.08, axes_radius=0.004)
         self._path: viser.SceneNodeHandle | None = None
         self._obstacles: list[viser.SceneNodeHandle] = []
+        self._obstacles_drawn: tuple[WorldBox, ...] | None = None
         self._label = scene.add_label(f"{root}/label", root.strip("/"), position=(0.0, 0.0, -0.05),
                                       anchor="top-center")
         self._tool = pin.SE3.Identity()
@@ -218,11 +224,13 @@ class ArmScene:
         """Shapes drawn for the links."""
         return len(self._links)
 
-    def show_joints(self, joints: Sequence[float]) -> None:
-        """Place the links at the wire joints [rad or m] (a ``Servo/status`` sample's measured ones)."""
+    def show_joints(self, joints: Sequence[float]) -> bool:
+        """Place the links at the wire joints [rad or m] (a ``Servo/status`` sample's measured ones); False if
+        they are within :data:`UNDRAWN_CHANGE` of the drawn ones (nothing sent to the page)."""
         joints = tuple(joints)
-        if joints == self._joints:
-            return
+        if (self._joints is not None and len(joints) == len(self._joints)
+                and max(abs(a - b) for a, b in zip(joints, self._joints)) < UNDRAWN_CHANGE):
+            return False
         poses = self.geometry.poses(joints)
         for handle, pose in zip(self._links, poses):
             handle.position = tuple(pose.translation)
@@ -233,10 +241,14 @@ class ArmScene:
         if self._joints is None:
             self._links_visible(True)
         self._joints = joints
+        return True
 
     def show_world(self, world: ServoWorld) -> None:
         """The obstacles of the servo's world, and the arm frame where the servo placed it."""
         self._arm.position = np.asarray(world.basePosition, dtype=float)
+        if world.obstacles == self._obstacles_drawn:  # republished as it was: a redraw costs the page frames
+            return
+        self._obstacles_drawn = world.obstacles
         for handle in self._obstacles:
             handle.remove()
         self._obstacles = [
@@ -251,10 +263,14 @@ class ArmScene:
         self._robot_frame.position = tuple(base.translation)
         self._robot_frame.wxyz = wxyz(base.rotation)
         centre, size = limit_box(settings)
-        if self._limits is not None:
-            self._limits.remove()
-        self._limits = self.scene.add_line_segments(f"{self.root}/arm/robot/soft_limits", box_edges(centre, size),
-                                                    LIMIT_COLOR, thickness=2.0, thickness_units="screen")
+        box = (tuple(centre.tolist()), tuple(size.tolist()))
+        if box != self._limits_drawn:  # the command republishes its settings unchanged: a redraw costs frames
+            if self._limits is not None:
+                self._limits.remove()
+            self._limits = self.scene.add_line_segments(f"{self.root}/arm/robot/soft_limits",
+                                                        box_edges(centre, size), LIMIT_COLOR, thickness=2.0,
+                                                        thickness_units="screen")
+            self._limits_drawn = box
         tool = hg_to_se3(settings.controlPointOffset)
         if not tool.isApprox(self._tool):
             self._tool = tool
