@@ -167,8 +167,9 @@ def test_live_a_joint_jog_stops_at_the_soft_limit_not_past_it(arm: Arm) -> None:
     limits[3] = LimitValue(upper=upper, lower=limits[3].lower)
     arm.ok(arm.common(OP.setSoftLimitJoint, {"softLimit": limits}))
     arm.record()
-    hold(arm, OP.jogJoint, {"axis": 4, "speedRatio": 60.0, "leaseMs": 600}, 3.0, refused=ReturnCode.VALUE_ERR)
-    arm.wait_rest()
+    # Until it cannot move at all: a jog stopped 1.3 mrad short once (a quiet run of three test workers), and a
+    # user holding the button on goes on from there.
+    hold_to_the_limit(arm, OP.jogJoint, {"axis": 4, "speedRatio": 60.0, "leaseMs": 600})
     q = arm.recorded()
     assert q[:, 3].max() <= upper + 1e-4, f"J4 reached {q[:, 3].max()}, past its soft limit {upper}"
     assert q[-1, 3] > upper - 1e-3, f"J4 stopped at {q[-1, 3]}, short of its soft limit {upper}"
