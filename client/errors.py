@@ -39,4 +39,12 @@ class MotionFailed(ArmError):
         self.alarms = alarms
 
 
-__all__ = ["ArmError", "MotionFailed", "NoAnswer", "Refused"]
+class StateTimeout(ArmError):
+    """A wait for a state (``Arm.wait_state``) ran out: ``state`` is the last one read."""
+
+    def __init__(self, state: int, timeout: float) -> None:
+        super().__init__(f"the state did not come within {timeout:g} s (last 0x{state:02x})")
+        self.state = state
+
+
+__all__ = ["ArmError", "MotionFailed", "NoAnswer", "Refused", "StateTimeout"]

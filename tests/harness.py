@@ -28,6 +28,7 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 import zenoh
 
+from jara_arm.client import StateTimeout
 from jara_arm.kinematics import Kinematics
 from jara_arm.robots import RobotModel, robot
 from jara_arm.schema import codec, messages
@@ -465,7 +466,13 @@ class LiveArm:
 
     def wait_rest(self, timeout: float = 10.0) -> None:
         """Until bit 0x02 is clear: the arm at rest, nothing queued, whatever else the state says."""
-        wait_until(lambda: not self.state() & StateBit.MOVING, timeout, what="the arm at rest")
+        if type(self).common is not LiveArm.common:  # a rig without the command service: no ``state`` published
+            wait_until(lambda: not self.state() & StateBit.MOVING, timeout, what="the arm at rest")
+            return
+        try:
+            self.client.wait_state(lambda s: not s & StateBit.MOVING, timeout)
+        except StateTimeout as exc:
+            raise AssertionError(f"timed out after {timeout} s waiting for the arm at rest: {exc}\n{self.explain()}")
 
     # -- the starting point -----------------------------------------------------------
     def reset(self) -> None:
