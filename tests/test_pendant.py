@@ -203,8 +203,15 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
             away = np.abs(q - q[-1]).max(axis=1) > AT_REST
             moved = tm[away]
             assert len(moved), f"no motion in the feedback before {what}"
+            bound = LEASE + 0.05 + 0.05
+            # A trace comes after its call's reply, at normal priority and dropped rather than queued: beside
+            # busy loops one can arrive after this test saw the arm at rest. Up to 2 s more for a late one.
+            deadline = time.monotonic() + 2.0
+            while float(moved[-1]) - max(t.t for t in traces) >= bound and time.monotonic() < deadline:
+                time.sleep(0.05)
+                traced()
             after_last = float(moved[-1]) - max(t.t for t in traces)
-            assert after_last < LEASE + 0.05 + 0.05, (
+            assert after_last < bound, (
                 f"at rest {after_last * 1e3:.0f} ms after the page's last renewal; J1 over the last 1.5 s "
                 f"(stamp - last renewal [ms], rad): "
                 f"{[(round((a - max(t.t for t in traces)) * 1e3), round(float(b), 5)) for a, b in zip(tm[tm > tm[-1] - 1.5][::25], q[tm > tm[-1] - 1.5][::25, 0])]}")
