@@ -43,10 +43,6 @@ LIMIT_COLOR: Rgb = (240, 160, 0)
 PATH_COLOR: Rgb = (0, 170, 255)
 #: Links drawn in this colour while the arm is gone (its servo's token is down).
 GONE_COLOR: Rgb = (120, 120, 120)
-#: A change of the measured joints that the page does not redraw [rad or m]: 20 µm at 2 m from the base, under a
-#: pixel of any view. At rest the simulated joints wander by about 5e-7 rad, and redrawing that at every status
-#: (10 Hz) kept the browser drawing 60 frames a second of an arm standing still: about a core of software WebGL.
-UNDRAWN_CHANGE = 1e-5
 
 
 class ShapeKind(enum.Enum):
@@ -224,13 +220,11 @@ class ArmScene:
         """Shapes drawn for the links."""
         return len(self._links)
 
-    def show_joints(self, joints: Sequence[float]) -> bool:
-        """Place the links at the wire joints [rad or m] (a ``Servo/status`` sample's measured ones); False if
-        they are within :data:`UNDRAWN_CHANGE` of the drawn ones (nothing sent to the page)."""
+    def show_joints(self, joints: Sequence[float]) -> None:
+        """Place the links at the wire joints [rad or m] (a ``Servo/status`` sample's measured ones)."""
         joints = tuple(joints)
-        if (self._joints is not None and len(joints) == len(self._joints)
-                and max(abs(a - b) for a, b in zip(joints, self._joints)) < UNDRAWN_CHANGE):
-            return False
+        if joints == self._joints:
+            return
         poses = self.geometry.poses(joints)
         for handle, pose in zip(self._links, poses):
             handle.position = tuple(pose.translation)
@@ -241,7 +235,6 @@ class ArmScene:
         if self._joints is None:
             self._links_visible(True)
         self._joints = joints
-        return True
 
     def show_world(self, world: ServoWorld) -> None:
         """The obstacles of the servo's world, and the arm frame where the servo placed it."""

@@ -142,7 +142,7 @@ class ArmView:
         self._shown_path = -1
         self._pending_world: ServoWorld | None = None
         self._pending_settings: Any = None
-        self.frames = 0  # joint updates drawn (a change under scene.UNDRAWN_CHANGE is not)
+        self.frames = 0  # joint updates drawn
 
     @property
     def present(self) -> bool:
@@ -187,7 +187,8 @@ class ArmView:
             self._pending_settings = None
         if feedback is not None and (fb := decode(SERVO_STATUS, feedback)) is not None and fb.pos:
             try:
-                self.frames += scene.show_joints(fb.pos)
+                scene.show_joints(fb.pos)
+                self.frames += 1
             except ValueError as exc:
                 log.warning("arm %s: %s", self.arm, exc)
         if self.running != self._shown_path:
