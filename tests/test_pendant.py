@@ -204,17 +204,22 @@ def test_live_hold_to_jog_in_a_browser_and_release_or_close_the_tab_to_stop(
             moved = tm[away]
             assert len(moved), f"no motion in the feedback before {what}"
             bound = LEASE + 0.05 + 0.05
+
+            def after_last_renewal() -> float:
+                return float(moved[-1]) - max(t.t for t in traces)
+
             # A trace comes after its call's reply, at normal priority and dropped rather than queued: beside
             # busy loops one can arrive after this test saw the arm at rest. Up to 2 s more for a late one.
             deadline = time.monotonic() + 2.0
-            while float(moved[-1]) - max(t.t for t in traces) >= bound and time.monotonic() < deadline:
+            while after_last_renewal() >= bound and time.monotonic() < deadline:
                 time.sleep(0.05)
                 traced()
-            after_last = float(moved[-1]) - max(t.t for t in traces)
-            assert after_last < bound, (
-                f"at rest {after_last * 1e3:.0f} ms after the page's last renewal; J1 over the last 1.5 s "
-                f"(stamp - last renewal [ms], rad): "
-                f"{[(round((a - max(t.t for t in traces)) * 1e3), round(float(b), 5)) for a, b in zip(tm[tm > tm[-1] - 1.5][::25], q[tm > tm[-1] - 1.5][::25, 0])]}")
+            after_last = after_last_renewal()
+            last = float(moved[-1]) - after_last
+            window = tm > tm[-1] - 1.5
+            j1 = [(round((a - last) * 1e3), round(float(b), 5)) for a, b in zip(tm[window][::25], q[window][::25, 0])]
+            assert after_last < bound, (f"at rest {after_last * 1e3:.0f} ms after the page's last renewal; J1 over "
+                                        f"the last 1.5 s (stamp - last renewal [ms], rad): {j1}")
             print(f"pendant in Chromium: at rest {stopped * 1e3:.0f} ms after {what}, "
                   f"{after_last * 1e3:.0f} ms after its last renewal (lease {LEASE * 1e3:.0f} ms)")
             traces.clear()
