@@ -392,15 +392,20 @@ def browser(workdir: Path) -> Iterator[Browser]:
         b.close()
 
 
-def settled_shot(b: Browser, out: Path, seconds: float = 1.0) -> np.ndarray:
-    """The page once its scene is drawn and stopped changing (faded in): two shots a second apart that agree,
-    the scene not blank (before it draws, the page's shots agree too: one colour, its panel text already
+#: [s] Between the shots that must agree for the page to have settled: longer than a change takes to draw, and
+#: short enough that a fade (viser fades new objects in) differs between two of them.
+SETTLE_SPACING = 0.5
+
+
+def settled_shot(b: Browser, out: Path) -> np.ndarray:
+    """The page once its scene is drawn and stopped changing (faded in): two shots ``SETTLE_SPACING`` apart that
+    agree, the scene not blank (before it draws, the page's shots agree too: one colour, its panel text already
     there)."""
     deadline = time.monotonic() + 60.0
-    time.sleep(seconds)
+    time.sleep(SETTLE_SPACING)
     last = b.shot(out)
     while True:
-        time.sleep(1.0)
+        time.sleep(SETTLE_SPACING)
         now = b.shot(out)
         if (differ(last, now) < 1e-4 and drawn(now)) or time.monotonic() > deadline:
             return now
@@ -500,12 +505,12 @@ def test_the_page_shows_a_fake_arm_and_its_moves(lone_session: zenoh.Session, tm
             empty = settled_shot(b, tmp_path / "empty.png")
             fake = FakeArm(lone_session, "v2", "arm6")  # the links and the label alone (~0.3 %)
             assert eventually(b, tmp_path / "arm.png", empty, 0.01) > 0.01, "the page shows no arm"
-            links = settled_shot(b, tmp_path / "arm.png", seconds=1.0)
+            links = settled_shot(b, tmp_path / "arm.png")
             fake.world = dataclasses.replace(fake.world, obstacles=(WorldBox((0.6, 0.3, 0.1), (0.1, 0.1, 0.1)),))
             fake.settings = _settings(fake.model, cartesian=(LimitValue(0.8, -0.4), LimitValue(0.6, -0.6),
                                                              LimitValue(1.0, 0.0)))
             assert eventually(b, tmp_path / "world.png", links, 0.005) > 0.005, "no obstacle, no soft-limit box"
-            shown = settled_shot(b, tmp_path / "world.png", seconds=1.0)
+            shown = settled_shot(b, tmp_path / "world.png")
             fake.joints = fake.joints + np.array([1.2, 0.4, -0.4, 0.0, 0.5, 0.0])
             assert eventually(b, tmp_path / "moved.png", shown, 0.005) > 0.005, "the page did not follow the arm"
     finally:
