@@ -15,6 +15,7 @@ own). conftest.py's ``live`` and ``arm`` fixtures give a module the system of on
 
 from __future__ import annotations
 
+import concurrent.futures
 import contextlib
 import functools
 import os
@@ -48,6 +49,8 @@ T = TypeVar("T")
 AT_HOME = 1e-4
 Explain = Callable[[], str]
 _STARTED = re.compile(r"started (\S+) \((\S+)\): pid (\d+)")
+#: Threads that ask the arm's independent calls at once (``LiveArm.reset``).
+_CALLS = concurrent.futures.ThreadPoolExecutor(8, thread_name_prefix="arm-call")
 
 
 # ---------------------------------------------------------------------------- processes
@@ -478,20 +481,28 @@ class LiveArm:
     def reset(self) -> None:
         """Back to where the live tests start: nothing moving, no alarm, servo on, identity offsets, the hard
         limits as soft limits, speed ratios 100 %, at the ready pose (home)."""
-        if self.state() & StateBit.MOVING:
+        state = self.state()
+        if state & StateBit.MOVING:
             self.middle(OP.stop)
             self.idle()
-        if self.state() & StateBit.ALARM:
+            state = self.state()
+        if state & StateBit.ALARM:
             self.common(OP.clearAlarms)
-        self.ok(self.common(OP.servoON))
-        self.ok(self.middle(OP.setBaseOffset, {"offset": hg_matrix()}))
-        self.ok(self.middle(OP.setControlPointOffset, {"offset": hg_matrix()}))
-        self.ok(self.common(OP.setSoftLimitJoint, {"softLimit": self.model.hard_limits}))
-        self.ok(self.middle(OP.setSpeedJoint, {"spdRatio": 100}))
-        self.ok(self.middle(OP.setSpeedCartesian, {"spdRatio": 100}))
+        # Independent of each other: asked at once, one round trip instead of six (a reset before each of
+        # ~400 live tests). setHome comes after the soft limits: a home outside the old ones is refused.
+        asked = [_CALLS.submit(call, name, args) for call, name, args in (
+            (self.common, OP.servoON, None),
+            (self.middle, OP.setBaseOffset, {"offset": hg_matrix()}),
+            (self.middle, OP.setControlPointOffset, {"offset": hg_matrix()}),
+            (self.common, OP.setSoftLimitJoint, {"softLimit": self.model.hard_limits}),
+            (self.middle, OP.setSpeedJoint, {"spdRatio": 100}),
+            (self.middle, OP.setSpeedCartesian, {"spdRatio": 100}))]
+        joints = _CALLS.submit(self.joints)
+        for reply in asked:
+            self.ok(reply.result())
         self.ok(self.middle(OP.setHome, {"jointPoint": self.model.ready_pose}))
         ready = np.asarray(self.model.ready_pose)
-        if np.abs(self.joints()[:len(ready)] - ready).max() > AT_HOME:  # a goHome costs a plan and a handover
+        if np.abs(joints.result()[:len(ready)] - ready).max() > AT_HOME:  # a goHome costs a plan and a handover
             self.home()
 
     def home(self) -> None:
