@@ -99,11 +99,13 @@ class Arm(RecordingArm):
         return self.log_tail(lines, keys=("WARNING", "ERROR", "alarm", "abort", "refused", "servo o"))
 
     def settle(self, tol: float = 1e-7, timeout: float = 2.0) -> None:
-        """Until the joint feedback stops changing (the servo has caught up with the last command)."""
+        """Until the joint feedback stops changing (the servo has caught up with the last command), read every
+        10 ms: it follows every motion of the module, and with reads 50 ms apart the module took 106.0 s alone
+        against 99.1 s (2026-12-02)."""
         deadline = time.monotonic() + timeout
         last = self.joints()
         while time.monotonic() < deadline:
-            time.sleep(0.05)
+            time.sleep(0.01)
             q = self.joints()
             if np.abs(q - last).max() < tol:
                 return
