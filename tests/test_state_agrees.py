@@ -1,7 +1,8 @@
 """What a client reads agrees at every instant: once ``getActiveAlarm`` lists a FAULT, ``getState`` has bit
 0x04 and no servo-on bit (before, 1 of 6 e-stops beside a busy loop answered 0x03 right after the FAULT was
 listed: the state followed the publications, the alarm list the monitor's live answer). And right after a
-servoON or servoOFF reply, ``getState`` shows it: the servo's reply carries its status (``Servo/power``)."""
+servoON or servoOFF reply, ``getState`` shows it: the servo's reply carries its status (``Servo/power``); and
+right after a move's reply, bit 0x02: the planner's reply carries its queue."""
 
 from __future__ import annotations
 
@@ -52,6 +53,10 @@ def test_right_after_a_servo_on_or_off_reply_the_state_shows_it(
                 moved = client.middle(OP.movePTPJointRel, {"jointPoints": turn})
                 if moved.id != ReturnCode.OK:
                     late.append(f"round {k}: a move right after the servoON reply refused: {moved}")
+                # The move's own reply carried the planner's queue: getState shows it at once (Arm.wait_idle's
+                # first look relies on it; the move takes over 0.2 s).
+                elif not (state := client.state) & StateBit.MOVING:
+                    late.append(f"round {k}: the move answered OK, then getState 0x{state:02x}: not moving")
                 wait_until(lambda: not client.state & StateBit.MOVING, 5, 0.01, "the move's end")
     assert not late, "\n".join(late[:10]) + f"\nlog: {proc.lines[-20:]}"
 
