@@ -130,14 +130,12 @@ class Arm(Operations):
             raise NoAnswer(f"{name}: {got.why}")
         return codec.decode_reply(op, got.payload, got.encoding)
 
-    def wait_idle(self, timeout: float = 60.0, poll: float = 0.0) -> float:
+    def wait_idle(self, timeout: float = 60.0) -> float:
         """Until the arm neither moves nor has queued motions (or is paused, or alarmed); the time waited [s].
         :class:`~.errors.ArmError` if it still moves after ``timeout`` [s]. A motion, jog, pause, resume or stop
         shows in ``getState`` as soon as its reply has come (the command takes in the queue the planner's reply
-        carries), so the first look is at once; ``poll`` [s] delays it (then :meth:`wait_state`)."""
+        carries), so the first look is at once (then :meth:`wait_state`)."""
         t0 = time.monotonic()
-        if poll > 0:
-            time.sleep(poll)
         try:
             self.wait_state(lambda s: not s & StateBit.MOVING or bool(s & (StateBit.PAUSED | StateBit.ALARM)),
                             timeout)

@@ -220,11 +220,12 @@ class ArmScene:
         """Shapes drawn for the links."""
         return len(self._links)
 
-    def show_joints(self, joints: Sequence[float]) -> None:
-        """Place the links at the wire joints [rad or m] (a ``Servo/status`` sample's measured ones)."""
+    def show_joints(self, joints: Sequence[float]) -> bool:
+        """Place the links at the wire joints [rad or m] (a ``Servo/status`` sample's measured ones); False if they
+        are the drawn ones (nothing sent to the page)."""
         joints = tuple(joints)
         if joints == self._joints:
-            return
+            return False
         poses = self.geometry.poses(joints)
         for handle, pose in zip(self._links, poses):
             handle.position = tuple(pose.translation)
@@ -235,6 +236,7 @@ class ArmScene:
         if self._joints is None:
             self._links_visible(True)
         self._joints = joints
+        return True
 
     def show_world(self, world: ServoWorld) -> None:
         """The obstacles of the servo's world, and the arm frame where the servo placed it."""

@@ -188,8 +188,7 @@ class ArmView:
             self._pending_settings = None
         if feedback is not None and (fb := decode(SERVO_STATUS, feedback)) is not None and fb.pos:
             try:
-                scene.show_joints(fb.pos)
-                self.frames += 1
+                self.frames += scene.show_joints(fb.pos)
             except ValueError as exc:
                 log.warning("arm %s: %s", self.arm, exc)
         if self.running != self._shown_path:
