@@ -133,6 +133,58 @@ def test_a_watch_forgives_a_service_that_said_it_leaves():
     assert not watch.leaving
 
 
+def _deletions_waiting(presence) -> int:
+    """Token deletions that arrived and were not drained yet."""
+    return sum(1 for s in list(presence._box._samples) if s.kind == zenoh.SampleKind.DELETE)
+
+
+def test_a_watcher_held_up_while_a_service_leaves_sees_a_departure_not_a_loss(session: zenoh.Session):
+    """The leaving beat and the token's deletion both wait in the watcher (its thread held up, a busy machine):
+    taken in arrival order, the deletion follows the beat that said it leaves (a CI run raised 0x402 for a
+    launcher that stopped in order, draining tokens before beats). Without that beat, a loss; a new process
+    of it after either comes up anew."""
+    from jara_arm.services.runtime.heartbeat import ServiceWatch
+    from jara_arm.services.runtime.presence import Change, Presence
+
+    keys = ArmKeys("hb-presence")
+    watches = {s: ServiceWatch(s, FAST) for s in (Service.COMMAND, Service.PLANNER)}
+    with Presence(session, keys, watches) as presence:
+        seen: list[tuple[Service, Change]] = []
+
+        def drained() -> list[tuple[Service, Change]]:
+            seen.extend((e.watch.service, e.change) for e in presence.drain(time.monotonic())
+                        if e.change is not Change.STALL)
+            return seen
+
+        def start(service: Service):
+            token = session.liveliness().declare_token(keys.alive(service))
+            heartbeat = Heartbeat(session, keys, service, health=FAST)
+            heartbeat.start()
+            watch = watches[service]
+            wait_until(lambda: drained() and watch.alive and watch.heard_at > watch.up_at, 5.0,
+                       what=f"the {service.value}'s token and a beat")
+            return token, heartbeat
+
+        command, planner = start(Service.COMMAND), start(Service.PLANNER)
+        assert seen == [(Service.COMMAND, Change.UP), (Service.PLANNER, Change.UP)]
+        seen.clear()
+
+        # Not drained from here on: the watcher is held up.
+        command[1].leave()  # the leaving beat, then the token, as a service that stops in order
+        command[0].undeclare()
+        command[1].close()
+        planner[1].close()  # the planner's process ends: no leaving beat
+        planner[0].undeclare()
+        wait_until(lambda: _deletions_waiting(presence) == 2, 5.0, what="both deletions waiting in the box")
+        assert drained() == [(Service.COMMAND, Change.LEFT), (Service.PLANNER, Change.LOST)]
+        seen.clear()
+
+        command = start(Service.COMMAND)  # a new process of it: watched anew
+        assert seen == [(Service.COMMAND, Change.UP)] and not watches[Service.COMMAND].leaving
+        command[1].close()
+        command[0].undeclare()
+
+
 # -- starved or hung: the evidence of this host's kernel (services/runtime/starvation.py) ------------
 def _child(code: str) -> "subprocess.Popen[bytes]":
     """A Python process running ``code``, returned once its interpreter has started: its start-up runs and

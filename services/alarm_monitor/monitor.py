@@ -27,20 +27,20 @@ from jara_arm.robots import RobotModel
 from jara_arm.schema import messages
 from jara_arm.schema.alarms import (
     ALARM_LIST,
-    HEARTBEAT,
     AlarmEventKind,
     AlarmList,
     format_code,
     make_alarm,
 )
 from jara_arm.schema.codes import AlarmCode
-from jara_arm.schema.errors import JaraArmError, WireError
-from jara_arm.schema.keys import ArmKeys, Service, parse_alive, parse_heartbeat
+from jara_arm.schema.errors import WireError
+from jara_arm.schema.keys import ArmKeys, Service
 from jara_arm.schema.planner import MOTION_SETTINGS, MotionSettings
 from jara_arm.schema.types import Alarm, Time
 from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import Pulse, ServiceWatch
 from jara_arm.services.runtime.inbox import Inbox
+from jara_arm.services.runtime.presence import Change, Presence
 from jara_arm.services.runtime.threads import LoopThread
 from jara_arm.services.runtime.timing import MONITOR_WAIT, SAME_HOST, Health
 from jara_arm.services.runtime.wire import Publication, decode_sample
@@ -100,15 +100,13 @@ class Monitor:
         self._entities = Entities()
         enter = self._entities.enter_context
         inbox = self._inbox = Inbox()
-        self._estop, self._alive, self._status = inbox.box(64), inbox.box(256), inbox.box(256)
-        self._heartbeats, self._settings_sub = inbox.box(1024), inbox.box(1)
+        self._estop, self._status, self._settings_sub = inbox.box(64), inbox.box(256), inbox.box(1)
         enter(session.declare_subscriber(keys.estop, self._estop))
-        enter(session.liveliness().declare_subscriber(keys.alive(), self._alive, history=True))
+        # Not its own heartbeat: 10 wakes a second for nothing.
+        self._presence = enter(Presence(session, keys, self.watches, inbox))
         # Servo/status (100 Hz) carries the servo's latched alarms and the measured joints: Servo/posFeedback
         # (1 kHz) would cost the monitor and the router ten times the work for no alarm sooner than 10 ms.
         enter(session.declare_subscriber(keys.servo_status, self._status))
-        for service in self.watches:  # not its own: 10 wakes a second for nothing
-            enter(session.declare_subscriber(keys.heartbeat(service), self._heartbeats))
         enter(session.declare_subscriber(keys.command_settings, self._settings_sub))
         self._event_pub = enter(Publication(session, keys.alarm))
         self._list_pub = enter(Publication(session, keys.monitor_alarms))
@@ -180,8 +178,7 @@ class Monitor:
                 pass
             log.error("emergency stop")
             self._raise(AlarmCode.EMERGENCY_STOP, f"emergency stop: a put on {self.keys.estop}")
-        self._drain_liveliness(now)
-        self._drain_heartbeats(now)
+        self._take_presence(now)
         while (s := self._status.try_recv()) is not None:
             # Working through a backlog (its CPU share was short for a while) is progress, not a hang.
             self._pulse.beat()
@@ -208,43 +205,20 @@ class Monitor:
             self._list_at = now
 
     # -- detectors ----------------------------------------------------------------
-    def _drain_liveliness(self, now: float) -> None:
-        while (s := self._alive.try_recv()) is not None:
-            try:
-                _arm, name = parse_alive(str(s.key_expr))
-                service = Service(name)
-            except (JaraArmError, ValueError):
-                continue  # someone else's token under our prefix
-            watch = self.watches.get(service)
-            if watch is None:
-                continue
-            up = s.kind == zenoh.SampleKind.PUT
-            if watch.token(up, now):
-                if watch.leaving:  # shut down in order (a launcher that stops, an operator)
-                    log.warning("the %s service stopped: it shut down in order", service.value)
-                else:
-                    self._raise(LOST_CODE[service], f"the {service.value} service is gone: its liveliness "
-                                "token was deleted (process ended or unreachable)")
-            elif up:
-                log.info("the %s service is up", service.value)
-
-    def _drain_heartbeats(self, now: float) -> None:
-        while (s := self._heartbeats.try_recv()) is not None:
-            try:
-                _arm, name = parse_heartbeat(str(s.key_expr))
-                watch = self.watches.get(Service(name))
-            except (JaraArmError, ValueError):
-                continue  # someone else's heartbeat under our prefix
-            if watch is None:
-                continue
-            try:
-                beat = decode_sample(HEARTBEAT, s)
-            except WireError as exc:
-                log.error("ignored a malformed heartbeat of the %s: %s", name, exc)
-                continue
-            gap = watch.heard(now, beat.stuck, beat.leaving, beat.pid, beat.host, beat.tid)
-            if gap is not None:
-                log.warning(watch.stall_line(gap))
+    def _take_presence(self, now: float) -> None:
+        for event in self._presence.drain(now):
+            name = event.watch.service.value
+            if event.change is Change.LEFT:  # shut down in order (a launcher that stops, an operator)
+                log.warning("the %s service stopped: it shut down in order", name)
+            elif event.change is Change.LOST:
+                self._raise(LOST_CODE[event.watch.service], f"the {name} service is gone: its liveliness "
+                            "token was deleted (process ended or unreachable)")
+            elif event.change is Change.UP:
+                log.info("the %s service is up", name)
+            elif event.change is Change.STALL:
+                log.warning(event.watch.stall_line(event.gap))
+            else:
+                log.error("ignored a malformed heartbeat of the %s: %s", name, event.error)
 
     def _judge_staleness(self, now: float) -> None:
         for service, watch in self.watches.items():

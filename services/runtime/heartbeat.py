@@ -15,7 +15,8 @@ that is late because the machine is busy would read as a stall.
 
 A service that shuts down in order calls :meth:`Heartbeat.leave` before it
 deletes its token: its last beat says ``leaving``, so its watchers see a
-departure, not a loss (no lost or hung FAULT for a launcher that stops).
+departure, not a loss (no lost or hung FAULT for a launcher that stops);
+``presence.py`` takes the two in the order they arrived.
 """
 
 from __future__ import annotations

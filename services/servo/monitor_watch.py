@@ -17,14 +17,11 @@ import time
 
 import zenoh
 
-from jara_arm.schema.alarms import HEARTBEAT
 from jara_arm.schema.codes import AlarmCode
-from jara_arm.schema.errors import WireError
 from jara_arm.schema.keys import ArmKeys, Service
-from jara_arm.services.runtime.entities import Entities
 from jara_arm.services.runtime.heartbeat import ServiceWatch
+from jara_arm.services.runtime.presence import Change, Presence
 from jara_arm.services.runtime.timing import Health
-from jara_arm.services.runtime.wire import decode_sample
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,12 +39,9 @@ class MonitorWatch:
 
     def __init__(self, session: zenoh.Session, keys: ArmKeys, health: Health) -> None:
         self.health = health
-        self._entities = Entities()
-        self._token = self._entities.enter_context(session.liveliness().declare_subscriber(
-            keys.alive(Service.ALARM_MONITOR), zenoh.handlers.FifoChannel(64), history=True))
-        self._beats = self._entities.enter_context(session.declare_subscriber(
-            keys.heartbeat(Service.ALARM_MONITOR), zenoh.handlers.RingChannel(1)))
         self._watch = ServiceWatch(Service.ALARM_MONITOR, health)
+        # Polled once per cycle: nothing to wake. Token and beats in one box, in arrival order.
+        self._presence = Presence(session, keys, {Service.ALARM_MONITOR: self._watch})
         self._looked_at = time.monotonic()  # [s] the previous look
         self._judge_after = 0.0  # [s] monotonic: the monitor's silence counts from then on
 
@@ -60,21 +54,16 @@ class MonitorWatch:
             self._judge_after = now + self.health.heartbeat_period
         self._looked_at = now
         watch = self._watch
-        while (sample := self._token.try_recv()) is not None:
-            if watch.token(sample.kind == zenoh.SampleKind.PUT, now):
+        for event in self._presence.drain(now):
+            if event.change in (Change.LEFT, Change.LOST):
                 # Even in order: nothing would watch overload, overspeed or the other services.
-                why = ("it shut down in order" if watch.leaving
+                why = ("it shut down in order" if event.change is Change.LEFT
                        else "its liveliness token was deleted (process ended or unreachable)")
                 found.append(Finding(AlarmCode.MONITOR_LOST, f"the alarm monitor is gone: {why}"))
-        if (sample := self._beats.try_recv()) is not None:
-            try:
-                beat = decode_sample(HEARTBEAT, sample)
-                gap = watch.heard(now, beat.stuck, beat.leaving, beat.pid, beat.host, beat.tid)
-            except WireError as exc:
-                found.append(Finding(error=f"ignored a malformed heartbeat of the alarm monitor: {exc}"))
-            else:
-                if gap is not None:
-                    found.append(Finding(warning=watch.stall_line(gap)))
+            elif event.change is Change.STALL:
+                found.append(Finding(warning=watch.stall_line(event.gap)))
+            elif event.change is Change.MALFORMED:
+                found.append(Finding(error=f"ignored a malformed heartbeat of the alarm monitor: {event.error}"))
         if now >= self._judge_after and not hung_latched and watch.hung(now):
             found.append(Finding(AlarmCode.MONITOR_HUNG,
                                  f"the alarm monitor hangs while its liveliness token is up: {watch.why_hung(now)}"))
@@ -92,4 +81,4 @@ class MonitorWatch:
         return self._watch.hung(time.monotonic())
 
     def close(self) -> None:
-        self._entities.close()
+        self._presence.close()
