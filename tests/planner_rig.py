@@ -70,6 +70,8 @@ class PlannerRig(RecordingArm):
     """The rig's client: motions planned and controlled as the command would, the servo's followed commands,
     feedback and statuses recorded, the planner's newest progress. ``proc`` is the planner."""
 
+    BLOCKS = False  # no gateway: the test is a peer of the servo (RecordingArm.BLOCKS)
+
     def __init__(self, session: zenoh.Session, robot_name: str, servo: Proc, planner: Proc) -> None:
         super().__init__(session, robot_name, proc=planner)
         self.servo_proc, self.planner_proc = servo, planner

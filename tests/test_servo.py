@@ -40,6 +40,8 @@ class Rig(RecordingArm):
     """A servo process alone, its feedback and every status recorded, and a low-level client's position
     commands to it. No command service: the Common interface is the servo's own."""
 
+    BLOCKS = False  # no gateway: the test is a peer of the servo (RecordingArm.BLOCKS)
+
     def __init__(self, session: zenoh.Session, robot_name: str, proc: Proc) -> None:
         super().__init__(session, robot_name, proc=proc)
         self.commands = PosCommands(session, self.keys, self.model.cmd_cycle)

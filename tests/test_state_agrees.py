@@ -7,6 +7,7 @@ right after a move's reply, bit 0x02: the planner's reply carries its queue."""
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -22,6 +23,8 @@ from .support import Client, Proc, busy_loops, client_session, wait_until
 
 ROUNDS = 50
 POWER_ROUNDS = 20
+#: [s] a move of the power rounds (0.02 rad at 50 %) takes at least this (0.205 s planned, 2026-12-05).
+MOVE_LASTS = 0.15
 
 
 @pytest.fixture(scope="module")
@@ -42,6 +45,7 @@ def test_right_after_a_servo_on_or_off_reply_the_state_shows_it(
     wait_until(lambda: client.common(OP.clearAlarms).id == ReturnCode.OK, 5, 0.05, "clearAlarms OK")
     assert client.middle(OP.setSpeedJoint, {"spdRatio": 50}).id == ReturnCode.OK
     late: list[str] = []
+    judged = 0  # moves whose getState came back soon enough to judge (below)
     for k in range(POWER_ROUNDS):
         for name, on in ((OP.servoON, True), (OP.servoOFF, False)):
             assert client.common(name).id == ReturnCode.OK, proc.lines[-20:]
@@ -50,15 +54,23 @@ def test_right_after_a_servo_on_or_off_reply_the_state_shows_it(
                 late.append(f"round {k}: {name} answered, then getState 0x{state:02x}, the servo's 0x{servo:02x}")
             if on:
                 turn = [0.02 if k % 2 == 0 else -0.02] + [0.0] * 6
+                sent = time.monotonic()
                 moved = client.middle(OP.movePTPJointRel, {"jointPoints": turn})
                 if moved.id != ReturnCode.OK:
                     late.append(f"round {k}: a move right after the servoON reply refused: {moved}")
                 # The move's own reply carried the planner's queue: getState shows it at once (Arm.wait_idle's
-                # first look relies on it; the move takes over 0.2 s).
-                elif not (state := client.state) & StateBit.MOVING:
-                    late.append(f"round {k}: the move answered OK, then getState 0x{state:02x}: not moving")
+                # first look relies on it). Judged only where the move's call and getState came back within
+                # MOVE_LASTS of the call: the move cannot have ended yet. A test thread held up longer (three
+                # workers in place: round 0, 2026-12-05) may rightly find it over.
+                else:
+                    state = client.state
+                    if time.monotonic() - sent < MOVE_LASTS:
+                        judged += 1
+                        if not state & StateBit.MOVING:
+                            late.append(f"round {k}: the move answered OK, then getState 0x{state:02x}: not moving")
                 wait_until(lambda: not client.state & StateBit.MOVING, 5, 0.01, "the move's end")
     assert not late, "\n".join(late[:10]) + f"\nlog: {proc.lines[-20:]}"
+    assert judged >= POWER_ROUNDS // 4, f"only {judged} of {POWER_ROUNDS} moves' states came back in time to judge"
 
 
 def test_once_a_fault_is_listed_the_state_says_alarm_and_servo_off(

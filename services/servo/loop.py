@@ -152,6 +152,8 @@ class ServoLoop:
         self._vel_list: list[float] = vel.tolist()
         self._pos_list: list[float] = pos.tolist()
         self._calls: collections.deque[tuple[Callable[[], Any], concurrent.futures.Future]] = collections.deque()
+        #: Called after a call is queued (the clock's: a resting clock runs the cycle now, ``clock.REST_BATCH``).
+        self.wake: Callable[[], None] = lambda: None
         self.received = self.underruns = self.dropped = 0
         self._drops = DropRun(self._log, keys.pos_cmd)
 
@@ -230,10 +232,19 @@ class ServoLoop:
         return ((AlarmCode.MONITOR_LOST in latches and not self._monitor.alive)
                 or (AlarmCode.MONITOR_HUNG in latches and self._monitor.hung()))
 
+    @property
+    def resting(self) -> bool:
+        """Nothing to do but hold: the world held (``SETTLED_CYCLES``), nothing commanded, buffered or called;
+        the clock may then run this arm's cycles in batches (``clock.REST_BATCH``)."""
+        law = self.law
+        return (self._still_for >= SETTLED_CYCLES and law.braking is None and not law.fifo and not law.moving
+                and not self.interp.active and not self._calls)
+
     def call(self, fn: Callable[[], T], timeout: float = 1.0) -> T:
         """Run ``fn`` on the clock's thread at this arm's next cycle and return its result."""
         fut: concurrent.futures.Future = concurrent.futures.Future()
         self._calls.append((fn, fut))
+        self.wake()
         return fut.result(timeout=timeout)
 
     # -- the cycle, driven by the process's ServoClock (clock.py) ---------------------
