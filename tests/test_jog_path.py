@@ -103,3 +103,14 @@ def test_a_cartesian_jog_goes_no_nearer_to_a_singularity_but_may_leave() -> None
     for i in range(1, 51):
         down.append(back.at(down[-1], 1e-5 * i))
     assert back.too_singular(down[0], np.array(down[1:])) == ""
+
+
+def test_a_track_at_its_end_up_to_rounding_brakes_there() -> None:
+    """Ruckig lands on the end up to rounding (7e-18 past it, a soft limit reached by a pendant's jog): the
+    stop is the end's, not a ProfileError that fails the jog."""
+    limits = ProfileLimits.from_accel_time(0.5, 0.2)
+    track = Track(DT, 0.030022195988849365, limits)
+    for past in (0.0, 7e-18, 1e-15):
+        track.restore((track.end + past, 1e-9, 0.0))
+        s = track.braking()
+        assert len(s) and np.all(s <= track.end), past

@@ -22,7 +22,7 @@ from jara_arm.schema.keys import Service
 from jara_arm.schema.operations import COMMON, OP
 from jara_arm.services.servo.control import OVERSPEED_MARGIN
 
-from .harness import PosCommands, Processes, RecordingArm, StatusLog
+from .harness import PosCommands, Processes, RecordingArm, StatusLog, timed_joints
 from .support import STREAM_PRIORITY, Proc, client_session, free_port, service_argv, wait_alive, wait_until
 
 pytestmark = pytest.mark.timeout(120)
@@ -139,6 +139,33 @@ def test_streamed_trajectory_is_followed(rig: Rig):
     assert dist.max() < 5e-3, dist.max()
 
 
+def test_a_resting_servo_still_stamps_every_cycle_and_never_ahead_of_time(rig: Rig):
+    """At rest the clock runs the cycles ten at a time (``clock.REST_BATCH``): every cycle keeps its sample,
+    stamped a period after the one before, none stamped later than it arrived (``ServoTime`` relies on a
+    cycle never running before its deadline); a call at rest (servoOFF, servoON) is taken, and a stream
+    from rest is followed one command per cycle (``test_fifo_consumes_every_command_in_order_one_per_cycle``)."""
+    arrivals: list[tuple[float, float]] = []  # (wall time the sample arrived, its tm) [s]
+
+    def take(sample: zenoh.Sample) -> None:  # a test's subscriber: appending is all it does
+        arrivals.append((time.time(), timed_joints(sample).tm.to_seconds()))
+
+    rig.servo_time.passes(0.3)  # settled: past SETTLED_CYCLES at rest, so the clock batches
+    with rig.session.declare_subscriber(rig.keys.pos_feedback, take):
+        rig.servo_time.passes(1.0)
+    got = list(arrivals)
+    tm = np.array([t for _, t in got])
+    steps = np.diff(tm)
+    # A host pause past RESYNC_AFTER restarts the schedule (a gap); nothing else may.
+    assert np.count_nonzero(np.abs(steps - DT) < 1e-6) >= 0.99 * len(steps), np.unique(np.round(steps, 4))
+    assert len(got) >= 900, f"{len(got)} samples in a second of the servo's time"
+    # The clocks are the same host's: a sample stamped after its arrival is a cycle run before its deadline.
+    early = [(a, t) for a, t in got if t > a + 1e-4]
+    assert not early, f"{len(early)} samples stamped after they arrived, e.g. {early[:3]}"
+    for name, bit in ((OP.servoOFF, 0), (OP.servoON, StateBit.SERVO_ON)):
+        assert rig.servo(name).id == ReturnCode.OK
+        assert rig.state() & StateBit.SERVO_ON == bit
+
+
 def test_fifo_consumes_every_command_in_order_one_per_cycle(rig: Rig):
     q0 = rig.joints()
     path = min_jerk(q0, q0 + np.array([0.2, 0, 0, 0, 0, 0, 0]), 0.4)  # strictly rising J1
@@ -147,6 +174,8 @@ def test_fifo_consumes_every_command_in_order_one_per_cycle(rig: Rig):
     t0 = time.monotonic()
     for q in path:  # all at once: the FIFO must hold them
         rig.commands.send(q)
+    # A resting servo takes what arrived at its next batch of cycles, up to 9 ms on (clock.REST_BATCH).
+    wait_until(lambda: rig.state() & StateBit.MOVING, 1.0, 0.001, "the servo taking the commands")
     rig.wait_rest()
     elapsed = time.monotonic() - t0
     status: list[messages.ServoStatus] = []

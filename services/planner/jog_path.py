@@ -114,6 +114,9 @@ class Track:
     def braking(self) -> NDArray[np.float64]:
         """The samples of ``s`` of the shortest jerk-limited stop from here (after the current one)."""
         s, sd, sdd = self.state
+        # Ruckig lands on the end up to rounding: 7e-18 past it made stop_profile refuse, and the held jog of a
+        # pendant stopped as failed (fresh-clone run 151, 2026-12-05).
+        s = min(max(s, 0.0), self.end)
         return stop_profile(self.end, s, max(sd, 0.0), sdd, self.limits).sample(self.dt).s[1:]
 
 
