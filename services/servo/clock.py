@@ -9,7 +9,9 @@ The clock sleeps to each deadline; behind by more than a period it runs the
 cycles back to back (catching up), behind by more than ``RESYNC_AFTER`` it
 restarts its schedule. An arm that waits for a late command mid-motion (its
 simulated time stands still) restarts the schedule too, so that it does not
-then consume its commands faster than real time.
+then consume its commands faster than real time. While every arm rests, it
+wakes once per ``REST_BATCH`` periods and runs the cycles due back to back; a
+call to an arm, or the first cycle with work, returns it to one per period.
 
 A cycle that raises ends the thread (:attr:`failed`); the service then exits
 and the launcher restarts it, every arm of it.
