@@ -366,7 +366,7 @@ class ServoLoop:
             if len(self._block) >= FEEDBACK_BLOCK_CYCLES:
                 self._block_put(messages.feedback_block_payload(self._block))
                 self._block = []
-        elif self._fb_wanted:
+        elif self._fb_wanted:  # not both: a gateway's client of JARA_ARM/** would get every sample twice
             self._fb_put(messages.timed_joint_pos_payload(tm_ns, self._pos_list))
         if self._target_matching is not None:
             while (matching := self._target_matching.try_recv()) is not None:
