@@ -76,7 +76,9 @@ STATUS_LISTEN: Final = 0.5
 #: at most for a ``Servo/status`` stamped then or later [s]: the pose the motion ended at, not one from
 #: before its end still newest here. At rest the servo publishes every 100 ms, and at once when it stops
 #: moving; a servo on another host whose clock is behind by more than this makes the read wait this long.
-ARRIVAL_LISTEN: Final = 0.3
+#: 0.3 s until 2026-12-05: with the command silent 629 ms beside busy loops, the demo read a CIRC 13.7 mm
+#: short of the end it reached (fresh-clone run 160); a pause of the whole host outlasts a short window.
+ARRIVAL_LISTEN: Final = 1.0
 #: While the servo slows down for a stop, the planner waits at most this long to learn where the
 #: arm stopped before it plans the next motion from there [s]: a stop from full speed takes
 #: about a min accel time (0.2-0.5 s for the robot models here).
