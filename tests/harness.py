@@ -36,7 +36,7 @@ from jara_arm.schema import codec, messages
 from jara_arm.schema import wire_types as w
 from jara_arm.schema.codec import Reply
 from jara_arm.schema.codes import ReturnCode, StateBit
-from jara_arm.schema.keys import ArmKeys, Service
+from jara_arm.schema.keys import ArmKeys, Service, arm_of
 from jara_arm.schema.operations import OP, Interface
 from jara_arm.schema.types import CarPosWithElbow, Time, TimedJointPos, hg_matrix
 
@@ -214,7 +214,7 @@ class Recorder:
         # A FIFO, not a ring: every sample counts (a gap would look like a jump). It is bounded (over two
         # minutes of feedback): its holder reads or clears it at least once per test.
         self._sub = session.declare_subscriber(key, zenoh.handlers.FifoChannel(1 << 17))
-        self._blocks = key.endswith("/Servo/posFeedbackBlock")
+        self._blocks = key == ArmKeys(arm_of(key)).pos_feedback_block
         self._explain = explain
 
     def _take(self) -> list[TimedJointPos]:

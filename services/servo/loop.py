@@ -232,13 +232,16 @@ class ServoLoop:
         return ((AlarmCode.MONITOR_LOST in latches and not self._monitor.alive)
                 or (AlarmCode.MONITOR_HUNG in latches and self._monitor.hung()))
 
+    def _held(self) -> bool:
+        """The world is held as it is (``SETTLED_CYCLES``): at rest that long, nothing braking, commanded or moving."""
+        law = self.law
+        return self._still_for >= SETTLED_CYCLES and law.braking is None and not law.fifo and not law.moving
+
     @property
     def resting(self) -> bool:
-        """Nothing to do but hold: the world held (``SETTLED_CYCLES``), nothing commanded, buffered or called;
-        the clock may then run this arm's cycles in batches (``clock.REST_BATCH``)."""
-        law = self.law
-        return (self._still_for >= SETTLED_CYCLES and law.braking is None and not law.fifo and not law.moving
-                and not self.interp.active and not self._calls)
+        """Nothing to do but hold: the world held, nothing buffered or called; the clock may then run this
+        arm's cycles in batches (``clock.REST_BATCH``)."""
+        return self._held() and not self.interp.active and not self._calls
 
     def call(self, fn: Callable[[], T], timeout: float = 1.0) -> T:
         """Run ``fn`` on the clock's thread at this arm's next cycle and return its result."""
@@ -339,8 +342,7 @@ class ServoLoop:
         if interp.done:
             self._log.debug("motions %s done", interp.done)
             interp.done.clear()
-        settled = not (self._still_for < SETTLED_CYCLES or law.braking is not None or law.fifo
-                       or law.moving)
+        settled = self._held()
         if not settled:
             self.world.command(law.q, law.qd)
             self.world.step()
